@@ -1,0 +1,183 @@
+"""Demonstration datasets: play a built-in agent in one of the package's envs and record a LeRobot v3.0 dataset.
+
+Episode layout (T steps → T + 1 frames, so that every transition (s_t, s_{t+1}) is in the data):
+frame t < T holds ``s_t``, the action ``a_t`` (if kept), and ``next.reward``/``next.done``/``next.success`` of
+that step; the last frame holds the terminal observation ``s_T`` with reward 0, ``next.done`` True and a
+placeholder action 0. Learners that need an action drop the last frame of each episode.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from lerobot.datasets import LeRobotDataset
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+from tqdm.auto import tqdm
+
+from lerobot_iupe.dataset_utils import resolve_root, staged_directory, write_iupe_meta
+from lerobot_iupe.envs.configs import IUPEEnvConfig
+from lerobot_iupe.experts import AGENTS, make_agent
+
+REWARD, DONE, SUCCESS = "next.reward", "next.done", "next.success"
+
+
+@dataclass
+class DatasetTarget:
+    repo_id: str = "local/iupe-demos"
+    # Local directory of the dataset; defaults to $HF_LEROBOT_HOME/<repo_id>.
+    root: str | None = None
+    private: bool = False
+
+
+@dataclass
+class CollectConfig:
+    env: EnvConfig | None = None
+    dataset: DatasetTarget = field(default_factory=DatasetTarget)
+    # Which built-in agent plays: "expert" or "random".
+    agent: str = "expert"
+    episodes: int = 20
+    # Episode i is reset with seed `seed + i` (mazes: on layout `seed + i`).
+    seed: int = 0
+    # Keep the expert's actions (only the supervised BC baseline needs them). Random datasets always keep them.
+    keep_actions: bool = False
+    # Maze only: start each episode from a random cell (random pre-demonstrations cover the maze better).
+    random_start: bool = False
+    # Replace an existing dataset root (the old one is kept until the new one is complete).
+    overwrite: bool = False
+    push_to_hub: bool = False
+
+    def validate(self) -> None:
+        if self.env is None:
+            raise ValueError("--env.type is required: one of cartpole, acrobot, mountaincar, maze")
+        if not isinstance(self.env, IUPEEnvConfig):
+            raise ValueError(
+                f"--env.type={self.env.type} is not an env of this package; use cartpole, acrobot, mountaincar or maze"
+            )
+        self.env.validate()
+        if self.agent not in AGENTS:
+            raise ValueError(f"--agent={self.agent} is not known; use one of {list(AGENTS)}")
+        if self.episodes <= 0:
+            raise ValueError(f"--episodes must be a positive number of episodes, got {self.episodes}")
+        if self.random_start and not self.env.is_image:
+            raise ValueError("--random_start=true only applies to --env.type=maze")
+
+    @property
+    def stores_actions(self) -> bool:
+        return self.agent == "random" or self.keep_actions
+
+
+def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool) -> dict:
+    """LeRobot feature spec of a demonstration dataset of this env."""
+    if env_cfg.is_image:
+        size = env_cfg.image_size
+        features = {OBS_IMAGE: {"dtype": "video", "shape": (size, size, 3), "names": ["height", "width", "channels"]}}
+    else:
+        dim = env_cfg.features["agent_pos"].shape[0]
+        features = {OBS_STATE: {"dtype": "float32", "shape": (dim,), "names": [f"s{i}" for i in range(dim)]}}
+    if with_actions:
+        features[ACTION] = {"dtype": "int64", "shape": (1,), "names": ["action_id"]}
+    features[REWARD] = {"dtype": "float32", "shape": (1,), "names": None}
+    features[DONE] = {"dtype": "bool", "shape": (1,), "names": None}
+    features[SUCCESS] = {"dtype": "bool", "shape": (1,), "names": None}
+    return features
+
+
+def _observation_entry(env_cfg: IUPEEnvConfig, observation: dict) -> dict:
+    if env_cfg.is_image:
+        return {OBS_IMAGE: observation["pixels"]}
+    return {OBS_STATE: np.asarray(observation["agent_pos"], dtype=np.float32)}
+
+
+def record_episodes(dataset: LeRobotDataset, cfg: CollectConfig) -> dict:
+    """Play ``cfg.episodes`` episodes into ``dataset``; returns per-episode statistics."""
+    env_cfg = cfg.env
+    env = env_cfg.make()
+    agent = make_agent(env_cfg.type, cfg.agent)
+    task = env.get_wrapper_attr("task_description")
+    returns, successes, lengths, layouts = [], [], [], []
+    progress = tqdm(range(cfg.episodes), desc=f"{env_cfg.type} {cfg.agent}", unit="episode")
+    for episode in progress:
+        seed = cfg.seed + episode
+        options = {"layout_id": seed, "random_start": cfg.random_start} if env_cfg.is_image else None
+        observation, info = env.reset(seed=seed, options=options)
+        total, success, done, steps = 0.0, False, False, 0
+        while not done:
+            action = agent(env, observation)
+            next_observation, reward, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            success |= bool(info["is_success"])
+            frame = _observation_entry(env_cfg, observation)
+            if cfg.stores_actions:
+                frame[ACTION] = np.array([action], dtype=np.int64)
+            frame.update(
+                {
+                    REWARD: np.array([reward], dtype=np.float32),
+                    DONE: np.array([done]),
+                    SUCCESS: np.array([success]),
+                    "task": task,
+                }
+            )
+            dataset.add_frame(frame)
+            total += float(reward)
+            observation = next_observation
+            steps += 1
+        last = _observation_entry(env_cfg, observation)
+        if cfg.stores_actions:
+            last[ACTION] = np.zeros(1, dtype=np.int64)
+        last.update(
+            {REWARD: np.zeros(1, np.float32), DONE: np.array([True]), SUCCESS: np.array([success]), "task": task}
+        )
+        dataset.add_frame(last)
+        dataset.save_episode()
+        returns.append(total)
+        successes.append(success)
+        lengths.append(steps)
+        if env_cfg.is_image:
+            layouts.append(int(info["layout_id"]))
+        progress.set_postfix(mean_return=f"{np.mean(returns):.2f}")
+    env.close()
+    return {"returns": returns, "successes": successes, "lengths": lengths, "layout_ids": layouts}
+
+
+def collect(cfg: CollectConfig) -> tuple[Path, dict]:
+    """Record the dataset described by ``cfg``; nothing is written at the root until it is complete."""
+    cfg.validate()
+    root = resolve_root(cfg.dataset.repo_id, cfg.dataset.root)
+    start = time.perf_counter()
+    with staged_directory(root, cfg.overwrite) as staged:
+        dataset = LeRobotDataset.create(
+            repo_id=cfg.dataset.repo_id,
+            fps=cfg.env.fps,
+            features=dataset_features(cfg.env, cfg.stores_actions),
+            root=staged,
+            robot_type=cfg.env.type,
+            use_videos=cfg.env.is_image,
+        )
+        try:
+            stats = record_episodes(dataset, cfg)
+        finally:
+            dataset.finalize()
+        shutil.rmtree(staged / "images", ignore_errors=True)  # frame scratch space, empty once videos are encoded
+        returns = np.asarray(stats["returns"])
+        meta = {
+            "env": cfg.env.settings(),
+            "agent": cfg.agent,
+            "episodes": cfg.episodes,
+            "seeds": [cfg.seed + i for i in range(cfg.episodes)],
+            "has_actions": cfg.stores_actions,
+            "random_start": cfg.random_start,
+            "mean_return": float(returns.mean()),
+            "std_return": float(returns.std()),
+            "success_rate": float(np.mean(stats["successes"])),
+            "episode_returns": [float(r) for r in returns],
+        }
+        if cfg.env.is_image:
+            meta["layout_ids"] = stats["layout_ids"]
+        write_iupe_meta(staged, meta)
+    meta["seconds"] = time.perf_counter() - start
+    return root, meta

@@ -1,0 +1,77 @@
+"""What every dataset-writing command of the package shares: the package's own metadata file, and
+write-new-then-swap so that an existing dataset is never left half-written or damaged."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from lerobot.utils.constants import HF_LEROBOT_HOME
+
+# LeRobot's DatasetInfo drops unknown keys of meta/info.json, so the package keeps its own file beside it.
+IUPE_META_PATH = "meta/iupe.json"
+
+
+def resolve_root(repo_id: str, root: str | Path | None) -> Path:
+    """LeRobot's default: ``$HF_LEROBOT_HOME/<repo_id>`` when no root is given."""
+    return Path(root) if root is not None else HF_LEROBOT_HOME / repo_id
+
+
+def read_iupe_meta(root: str | Path) -> dict:
+    """The package's metadata of a dataset (env settings, agent, seeds, layouts); ``{}`` if absent."""
+    path = Path(root) / IUPE_META_PATH
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def write_iupe_meta(root: str | Path, meta: dict) -> None:
+    path = Path(root) / IUPE_META_PATH
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+
+def check_writable(root: Path, overwrite: bool, flag: str = "--dataset.root") -> None:
+    """Refuse an existing root unless overwriting was asked for — before any work is done."""
+    if root.exists() and not overwrite:
+        raise FileExistsError(
+            f"{flag}={root} already exists; choose another root, or pass --overwrite=true to replace it "
+            "(the old dataset is kept until the new one is complete)"
+        )
+
+
+@contextmanager
+def staged_directory(final: Path, overwrite: bool) -> Iterator[Path]:
+    """Yield a fresh sibling directory to build into; on success swap it in for ``final``.
+
+    On any exception the staged directory is removed and ``final`` is untouched. The swap is two renames on
+    the same filesystem, so a process killed at any moment leaves either the old or the new dataset at
+    ``final`` (plus, at worst, a hidden leftover sibling that the next run ignores)."""
+    check_writable(final, overwrite)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    token = uuid.uuid4().hex[:8]
+    staged = final.parent / f".{final.name}.partial-{token}"
+    try:
+        yield staged
+    except BaseException:
+        shutil.rmtree(staged, ignore_errors=True)
+        raise
+    backup = final.parent / f".{final.name}.old-{token}"
+    if final.exists():
+        os.rename(final, backup)
+    os.rename(staged, final)
+    shutil.rmtree(backup, ignore_errors=True)
+
+
+def run_cli(main: Callable[[], object]) -> None:
+    """Run a CLI body; turn the package's input errors into one clear line and exit code 2."""
+    import sys
+
+    try:
+        main()
+    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)

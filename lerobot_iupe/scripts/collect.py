@@ -1,0 +1,36 @@
+"""lerobot-iupe-collect: record expert or random demonstrations of the package's envs as a LeRobot dataset.
+
+Examples:
+    lerobot-iupe-collect --env.type=cartpole --agent=expert --episodes=20 \
+        --dataset.repo_id=local/cartpole-expert --dataset.root=data/cartpole-expert --seed=0
+    lerobot-iupe-collect --env.type=maze --env.size=5 --agent=random --random_start=true --episodes=200 \
+        --dataset.repo_id=local/maze5-random --dataset.root=data/maze5-random --seed=1000
+Expert datasets carry no `action` column unless --keep_actions=true; random datasets always carry it.
+"""
+
+from lerobot.configs import parser
+
+from lerobot_iupe.collect import CollectConfig, collect
+from lerobot_iupe.dataset_utils import run_cli
+
+
+@parser.wrap()
+def collect_main(cfg: CollectConfig) -> None:
+    root, meta = collect(cfg)
+    print(
+        f"wrote {meta['episodes']} {cfg.agent} episodes of {cfg.env.type} to {root} in {meta['seconds']:.1f}s: "
+        f"mean return {meta['mean_return']:.2f} ± {meta['std_return']:.2f}, success {meta['success_rate']:.0%}"
+    )
+    if cfg.push_to_hub:
+        from lerobot_iupe.hub import push_dataset
+
+        url = push_dataset(root, cfg.dataset.repo_id, private=cfg.dataset.private)
+        print(f"pushed to {url}")
+
+
+def main() -> None:
+    run_cli(collect_main)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,53 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.setdefault("HF_HUB_OFFLINE", "0")
+
+BIN = Path(sys.executable).parent
+
+
+def run_cli(name: str, *args: str, env: dict | None = None, check: bool = True) -> subprocess.CompletedProcess:
+    """Run one of the installed console scripts (lerobot-iupe-*, lerobot-train, lerobot-eval) for real."""
+    result = subprocess.run(
+        [str(BIN / name), *args], capture_output=True, text=True, env={**os.environ, **(env or {})}, timeout=600
+    )
+    if check and result.returncode != 0:
+        raise AssertionError(f"{name} failed ({result.returncode}):\n{result.stdout[-3000:]}\n{result.stderr[-5000:]}")
+    return result
+
+
+@pytest.fixture(scope="session")
+def data_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("data")
+
+
+def collect(data_dir: Path, name: str, *args: str) -> Path:
+    root = data_dir / name
+    if not root.exists():
+        run_cli("lerobot-iupe-collect", f"--dataset.repo_id=local/{name}", f"--dataset.root={root}", *args)
+    return root
+
+
+@pytest.fixture(scope="session")
+def cartpole_expert(data_dir) -> Path:
+    return collect(data_dir, "cartpole-expert", "--env.type=cartpole", "--agent=expert", "--episodes=10")
+
+
+@pytest.fixture(scope="session")
+def maze_random(data_dir) -> Path:
+    return collect(
+        data_dir,
+        "maze3-random",
+        "--env.type=maze",
+        "--env.size=3",
+        "--agent=random",
+        "--random_start=true",
+        "--episodes=6",
+        "--seed=50",
+    )

@@ -1,0 +1,99 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from lerobot.envs.factory import make_env
+
+from lerobot_iupe.envs import (
+    HELDOUT_LAYOUT_START,
+    AcrobotEnvConfig,
+    CartPoleEnvConfig,
+    MazeEnvConfig,
+    MazeLayout,
+    MountainCarEnvConfig,
+)
+
+CONFIGS = [
+    CartPoleEnvConfig(),
+    AcrobotEnvConfig(),
+    MountainCarEnvConfig(),
+    MazeEnvConfig(size=3),
+    MazeEnvConfig(size=10),
+]
+
+
+@pytest.mark.parametrize("cfg", CONFIGS, ids=lambda c: f"{c.type}")
+def test_env_passes_gymnasium_checker(cfg):
+    env = gym.make(cfg.gym_id, **cfg.gym_kwargs).env.env  # below TimeLimit/OrderEnforcing: our own class
+    check_env(env, skip_render_check=False)
+
+
+@pytest.mark.parametrize("cfg", CONFIGS, ids=lambda c: f"{c.type}")
+def test_lerobot_make_env_steps_with_float_actions(cfg):
+    envs = make_env(cfg, n_envs=2)
+    vec = envs[cfg.type][0]
+    obs, info = vec.reset(seed=[0, 1])
+    key = "pixels" if cfg.is_image else "agent_pos"
+    assert obs[key].shape[0] == 2
+    obs, reward, terminated, truncated, info = vec.step(np.zeros((2, 1), dtype=np.float32))
+    assert reward.shape == (2,)
+    assert vec.call("_max_episode_steps")[0] == cfg.max_episode_steps
+    assert isinstance(vec.call("task_description")[0], str)
+    vec.close()
+
+
+def test_bad_action_is_refused():
+    env = CartPoleEnvConfig().make()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="not a valid action id"):
+        env.step(np.array([2.0]))
+
+
+def test_maze_layout_is_deterministic_and_perfect_plus_loops():
+    a, b = MazeLayout.generate(5, 7), MazeLayout.generate(5, 7)
+    assert np.array_equal(a.open, b.open)
+    assert not np.array_equal(a.open, MazeLayout.generate(5, 8).open)
+    openings = a.open.sum() // 2
+    assert openings == 5 * 5 - 1 + round(0.1 * 25)  # spanning tree + extra openings (loops)
+    assert (a.shortest_path_actions((4, 4))[np.arange(5)[:, None], np.arange(5)] >= 0).sum() == 24  # all reach goal
+
+
+def test_maze_size_below_two_is_refused():
+    with pytest.raises(ValueError, match="--env.size must be at least 2"):
+        MazeEnvConfig(size=1).validate()
+
+
+def test_maze_rules():
+    env = MazeEnvConfig(size=3).make()
+    obs, info = env.reset(seed=0, options={"layout_id": 4})
+    layout = env.unwrapped.layout
+    blocked = next(a for a in range(4) if not layout.open[0, 0, a])
+    obs2, reward, terminated, truncated, info = env.step(blocked)
+    assert info["agent_cell"] == (0, 0) and np.array_equal(obs2["pixels"], obs["pixels"])
+    assert reward == pytest.approx(-0.1 / 9) and not terminated
+    total, done = reward, False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(env.unwrapped.expert_action())
+        total += reward
+        done = terminated or truncated
+    assert terminated and info["is_success"] and reward == 1.0
+
+
+def test_maze_layout_ranges():
+    demo = MazeEnvConfig(size=3, num_layouts=10).make()
+    heldout = MazeEnvConfig(size=3, layouts="heldout", num_layouts=10).make()
+    demo_ids = {demo.reset(seed=s)[1]["layout_id"] for s in range(30)}
+    heldout_ids = {heldout.reset(seed=s)[1]["layout_id"] for s in range(30)}
+    assert demo_ids <= set(range(10))
+    assert heldout_ids <= set(range(HELDOUT_LAYOUT_START, HELDOUT_LAYOUT_START + 10))
+
+
+def test_cartpole_success_is_the_papers_goal():
+    env = CartPoleEnvConfig().make()
+    env.reset(seed=0)
+    from lerobot_iupe.experts import cartpole_expert
+
+    obs, _ = env.reset(seed=0)
+    for step in range(1, 200):
+        obs, _, _, _, info = env.step(cartpole_expert(env, obs))
+        assert info["is_success"] == (step >= 195)
