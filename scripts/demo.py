@@ -22,12 +22,22 @@ def main() -> None:
     shutil.rmtree(OUT, ignore_errors=True)
     data = OUT / "data"
     run(
-        "lerobot-iupe-collect", "--env.type=cartpole", "--agent=expert", "--episodes=10", "--seed=0",
-        "--dataset.repo_id=local/cartpole-expert", f"--dataset.root={data / 'cartpole-expert'}",
+        "lerobot-iupe-collect",
+        "--env.type=cartpole",
+        "--agent=expert",
+        "--episodes=10",
+        "--seed=0",
+        "--dataset.repo_id=local/cartpole-expert",
+        f"--dataset.root={data / 'cartpole-expert'}",
     )
     run(
-        "lerobot-iupe-collect", "--env.type=cartpole", "--agent=random", "--episodes=200", "--seed=1000",
-        "--dataset.repo_id=local/cartpole-random", f"--dataset.root={data / 'cartpole-random'}",
+        "lerobot-iupe-collect",
+        "--env.type=cartpole",
+        "--agent=random",
+        "--episodes=200",
+        "--seed=1000",
+        "--dataset.repo_id=local/cartpole-random",
+        f"--dataset.root={data / 'cartpole-random'}",
     )
     print(f"\ndatasets in {data}: load them with LeRobotDataset(repo_id, root=...)")
 

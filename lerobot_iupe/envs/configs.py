@@ -40,8 +40,8 @@ class IUPEEnvConfig(EnvConfig):
         """Raise a ValueError naming the flag when a setting is out of range (draccus hides __post_init__ errors)."""
 
     def settings(self) -> dict:
-        """What a dataset records so a consumer can rebuild this exact environment."""
-        return {"type": self.type, **self.gym_kwargs}
+        """What a dataset records so a consumer can rebuild this exact environment (config fields)."""
+        raise NotImplementedError
 
     def make(self) -> gym.Env:
         """One environment with LeRobot's wrappers order (time limit outside)."""
@@ -70,6 +70,9 @@ class ClassicEnvConfig(IUPEEnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         return {"max_episode_steps": self.episode_length}
+
+    def settings(self) -> dict:
+        return {"type": self.type, "episode_length": self.episode_length}
 
 
 @EnvConfig.register_subclass("cartpole")

@@ -1,0 +1,116 @@
+"""The algorithmic core of IUPE as small pure functions: label/action choice, Eq. 1, the sampling rule, metrics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Transitions:
+    """Aligned (s_t, a_t, s_{t+1}) of the same step; states are arrays or tensors with a leading N axis."""
+
+    states: np.ndarray
+    actions: np.ndarray
+    next_states: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def take(self, index: np.ndarray) -> Transitions:
+        return Transitions(self.states[index], self.actions[index], self.next_states[index])
+
+    @staticmethod
+    def concat(parts: list[Transitions]) -> Transitions:
+        return Transitions(
+            np.concatenate([p.states for p in parts]),
+            np.concatenate([p.actions for p in parts]),
+            np.concatenate([p.next_states for p in parts]),
+        )
+
+
+def choose_actions(logits: torch.Tensor, explore: bool, generator: torch.Generator | None = None) -> torch.Tensor:
+    """One action per row: a categorical draw from softmax(logits) when exploring, else the argmax."""
+    if not explore:
+        return logits.argmax(dim=-1)
+    probs = torch.softmax(logits.float(), dim=-1)
+    return torch.multinomial(probs, 1, generator=generator).squeeze(-1)
+
+
+def success_action_distribution(episode_actions: list[np.ndarray], successes: np.ndarray, n_actions: int) -> np.ndarray:
+    """Eq. 1: P(a|E) = (1/|E|) Σ_e v_e · freq_e(a). Sums to r, the success rate."""
+    total = np.zeros(n_actions)
+    for actions, success in zip(episode_actions, successes, strict=True):
+        if success and len(actions):
+            total += np.bincount(actions, minlength=n_actions) / len(actions)
+    return total / max(len(episode_actions), 1)
+
+
+def apportion(total: int, weights: np.ndarray, minimum_one: np.ndarray | None = None) -> np.ndarray:
+    """Split ``total`` into integer counts ∝ ``weights`` (largest remainder). Where ``minimum_one`` is set, a
+    positive-weight class gets at least one sample when ``total`` allows it."""
+    weights = np.asarray(weights, dtype=np.float64)
+    counts = np.zeros(len(weights), dtype=np.int64)
+    if total <= 0 or weights.sum() <= 0:
+        return counts
+    if minimum_one is not None:
+        floor = minimum_one & (weights > 0)
+        if floor.sum() <= total:
+            counts[floor] = 1
+    remaining = total - counts.sum()
+    exact = weights / weights.sum() * remaining
+    counts += np.floor(exact).astype(np.int64)
+    short = total - counts.sum()
+    order = np.argsort(-(exact - np.floor(exact)), kind="stable")
+    counts[order[:short]] += 1
+    return counts
+
+
+def sampling_counts(p_success: np.ndarray, pre_present: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """How many transitions per action to take from successful runs and from pre-demonstrations.
+
+    With r = Σ P(a|E): share r of ``size`` from successful runs, per action ∝ P(a|E); share 1 − r from
+    pre-demonstrations, per action ∝ 1 − P(a|E) over the actions present in I_pre ("inverse probability"),
+    every one of them kept (at least one sample) while r < 1."""
+    r = float(np.clip(p_success.sum(), 0.0, 1.0))
+    n_success = int(round(r * size))
+    from_success = apportion(n_success, p_success)
+    pre_weights = np.where(pre_present, 1.0 - p_success, 0.0)
+    from_pre = apportion(size - n_success, pre_weights, minimum_one=pre_present)
+    return from_success, from_pre
+
+
+def build_sampled_set(
+    pre: Transitions,
+    successful: Transitions,
+    p_success: np.ndarray,
+    size: int,
+    rng: np.random.Generator,
+) -> Transitions:
+    """I^s by the sampling rule; a class with fewer transitions than its share is drawn with replacement.
+    ``successful`` holds only transitions of rollouts that reached the goal."""
+    n_actions = len(p_success)
+    pre_present = np.bincount(pre.actions, minlength=n_actions)[:n_actions] > 0
+    from_success, from_pre = sampling_counts(p_success, pre_present, size)
+    picks = []
+    for source, counts in ((successful, from_success), (pre, from_pre)):
+        for action, count in enumerate(counts):
+            if count == 0:
+                continue
+            pool = np.flatnonzero(source.actions == action)
+            if len(pool) == 0:
+                raise ValueError(f"no transitions of action {action} to draw {count} samples from")
+            picks.append(source.take(rng.choice(pool, size=count, replace=count > len(pool))))
+    return Transitions.concat(picks)
+
+
+def performance(returns: np.ndarray, expert_return: float, random_return: float) -> float:
+    """P: mean over episodes of (R − R_random) / (R_expert − R_random); 0 = random, 1 = expert."""
+    return float(np.mean((np.asarray(returns) - random_return) / (expert_return - random_return)))
+
+
+def average_episodic_reward(returns: np.ndarray) -> float:
+    """AER: mean summed reward per evaluation episode."""
+    return float(np.mean(returns))

@@ -1,0 +1,97 @@
+"""``--policy.type=iupe``: configuration of the IUPE policy (inverse dynamics model + policy model)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
+from lerobot.optim import AdamConfig
+from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+
+
+@PreTrainedConfig.register_subclass("iupe")
+@dataclass
+class IUPEConfig(PreTrainedConfig):
+    """IUPE = BCO(α) + sampling + exploration + self-attention. All three off is BCO(α);
+    ``supervised=true`` trains the policy on the dataset's true actions (the BC baseline)."""
+
+    # Random pre-demonstrations (with actions) that train the inverse dynamics model first.
+    pre_demos_repo_id: str | None = None
+    pre_demos_root: str | None = None
+    # The three mechanisms of the paper.
+    sampling: bool = True
+    exploration: bool = True
+    attention: bool = True
+    supervised: bool = False
+    # Number of discrete actions; 0 = read from the pre-demonstrations (or the env).
+    n_actions: int = 0
+    # Environment of the rollouts; None = the one recorded in the expert dataset's meta/iupe.json.
+    env_settings: dict | None = None
+    # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
+    cycle_steps: int = 100
+    rollout_episodes: int = 20
+    idm_epochs: int = 2
+    idm_batch_size: int = 256
+    idm_lr: float = 1e-3
+    # I^s size; 0 = |I_pre|.
+    sampled_set_size: int = 0
+    # Network sizes.
+    hidden_dim: int = 64
+    token_dim: int = 16
+    cnn_width: int = 16
+    # Images: the IDM sees [s_t, s_{t+1} - s_t] (True) or encodes both frames with a shared encoder (False).
+    idm_frame_difference: bool = True
+    optimizer_lr: float = 1e-3
+    seed: int = 0
+    push_to_hub: bool = False
+
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            # States are normalised inside the model (its buffers), because the policy also feeds itself
+            # pre-demonstrations and rollouts that never pass through LeRobot's processors.
+            "STATE": NormalizationMode.IDENTITY,
+            "VISUAL": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.IDENTITY,
+        }
+    )
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.cycle_steps <= 0 or self.rollout_episodes <= 0:
+            raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
+
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        return [0, 1]
+
+    @property
+    def action_delta_indices(self) -> list[int] | None:
+        return [0] if self.supervised else None
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    @property
+    def drop_n_last_frames(self) -> int:
+        return 1  # the last frame of an episode has no successor
+
+    @property
+    def observation_key(self) -> str:
+        return OBS_IMAGE if OBS_IMAGE in self.input_features else OBS_STATE
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(lr=self.optimizer_lr, grad_clip_norm=10.0)
+
+    def get_scheduler_preset(self) -> None:
+        return None
+
+    def validate_features(self) -> None:
+        keys = set(self.input_features)
+        if OBS_STATE not in keys and OBS_IMAGE not in keys:
+            raise ValueError(
+                f"the expert dataset has neither '{OBS_STATE}' nor '{OBS_IMAGE}' (features: {sorted(keys)}); "
+                "IUPE needs one of them"
+            )
+        # make_policy sets output_features from the dataset's actions: {} for state-only data.
+        self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(1,))}

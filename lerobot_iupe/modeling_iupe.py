@@ -1,0 +1,423 @@
+"""IUPE policy: an inverse dynamics model (IDM) P(a | s_t, s_{t+1}) and a policy model (PM) P(a | s_t),
+trained by the full IUPE algorithm inside ``lerobot-train``.
+
+How the algorithm maps onto LeRobot's training loop (one optimizer step = one PM step on an expert batch):
+- first ``forward``: load the pre-demonstrations I_pre, I^s = I_pre, train the IDM on it;
+- every step: label the expert pairs (s_t, s_{t+1}) with the IDM (a categorical draw per row when exploring,
+  argmax otherwise) and take a PM step on those labels;
+- every ``cycle_steps`` steps (``update()``): roll out the PM for ``rollout_episodes`` episodes, record
+  (s_t, a_t, s_{t+1}) of the same step and whether the goal was reached, select the model by goal success,
+  rebuild I^s by the sampling rule and retrain the IDM on it.
+The checkpoint LeRobot saves holds the *selected* model (best rollout success, latest on ties). A resumed run
+restores that model and LeRobot's optimizer state; I^s is rebuilt from I_pre and the cycles go on from there.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+from lerobot.datasets import LeRobotDataset
+from lerobot.envs.configs import EnvConfig
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+from torch import Tensor, nn
+
+from lerobot_iupe.algorithm import (
+    Transitions,
+    build_sampled_set,
+    choose_actions,
+    success_action_distribution,
+)
+from lerobot_iupe.configuration_iupe import IUPEConfig
+from lerobot_iupe.dataset_utils import read_iupe_meta
+
+log = logging.getLogger("lerobot_iupe")
+
+
+# ---------------------------------------------------------------- networks
+
+
+class TokenSelfAttention(nn.Module):
+    """SAGAN-style self-attention over tokens (B, L, d): x + γ · softmax(QKᵀ/√d) V, γ learned from 0."""
+
+    def __init__(self, dim: int):
+        super().__init__()
+        self.query, self.key, self.value = nn.Linear(dim, dim), nn.Linear(dim, dim), nn.Linear(dim, dim)
+        self.gamma = nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: Tensor) -> Tensor:
+        scores = self.query(x) @ self.key(x).transpose(1, 2) / x.shape[-1] ** 0.5
+        return x + self.gamma * (torch.softmax(scores, dim=-1) @ self.value(x))
+
+
+class SpatialSelfAttention(nn.Module):
+    """SAGAN self-attention over the positions of a feature map (B, C, H, W), γ learned from 0."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        inner = max(channels // 8, 1)
+        self.query, self.key = nn.Conv2d(channels, inner, 1), nn.Conv2d(channels, inner, 1)
+        self.value = nn.Conv2d(channels, channels, 1)
+        self.gamma = nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: Tensor) -> Tensor:
+        b, c, h, w = x.shape
+        q = self.query(x).flatten(2).transpose(1, 2)
+        k = self.key(x).flatten(2)
+        attn = torch.softmax(q @ k, dim=-1)
+        out = (self.value(x).flatten(2) @ attn.transpose(1, 2)).view(b, c, h, w)
+        return x + self.gamma * out
+
+
+class VectorEncoder(nn.Module):
+    """One token per state feature (value · w_i + b_i), optional self-attention across features, then an MLP."""
+
+    def __init__(self, n_features: int, token_dim: int, hidden: int, attention: bool):
+        super().__init__()
+        self.token_weight = nn.Parameter(torch.randn(n_features, token_dim) * 0.5)
+        self.token_bias = nn.Parameter(torch.zeros(n_features, token_dim))
+        self.attention = TokenSelfAttention(token_dim) if attention else nn.Identity()
+        self.mlp = nn.Sequential(
+            nn.Linear(n_features * token_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        tokens = x.unsqueeze(-1) * self.token_weight + self.token_bias
+        return self.mlp(self.attention(tokens).flatten(1))
+
+
+class ResidualBlock(nn.Module):
+    def __init__(self, cin: int, cout: int, stride: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1)
+        self.skip = nn.Conv2d(cin, cout, 1, stride) if (cin != cout or stride != 1) else nn.Identity()
+
+    def forward(self, x: Tensor) -> Tensor:
+        return F.relu(self.conv2(F.relu(self.conv1(x))) + self.skip(x))
+
+
+class ImageEncoder(nn.Module):
+    """Compact residual CNN (CPU-sized at 64×64) with self-attention after the first and second stages."""
+
+    def __init__(self, in_channels: int, width: int, hidden: int, attention: bool):
+        super().__init__()
+        self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 3, 2, 1), nn.ReLU())
+        self.stage1 = ResidualBlock(width, width, 2)
+        self.attention1 = SpatialSelfAttention(width) if attention else nn.Identity()
+        self.stage2 = ResidualBlock(width, 2 * width, 2)
+        self.attention2 = SpatialSelfAttention(2 * width) if attention else nn.Identity()
+        self.stage3 = ResidualBlock(2 * width, 2 * width, 1)
+        self.pool = nn.AdaptiveAvgPool2d(4)
+        self.head = nn.Sequential(nn.Linear(2 * width * 16, hidden), nn.ReLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = self.attention1(self.stage1(self.stem(x)))
+        x = self.stage3(self.attention2(self.stage2(x)))
+        return self.head(self.pool(x).flatten(1))
+
+
+# ---------------------------------------------------------------- policy
+
+
+def env_config_from_settings(settings: dict) -> EnvConfig:
+    kwargs = {k: v for k, v in settings.items() if k != "type"}
+    return EnvConfig.get_choice_class(settings["type"])(**kwargs)
+
+
+def load_transitions(dataset: LeRobotDataset, key: str) -> Transitions:
+    """All (s_t, a_t, s_{t+1}) of a dataset with actions; images kept as uint8 (N, C, H, W)."""
+    table = dataset.hf_dataset.with_format("numpy")
+    episodes = np.asarray(table["episode_index"])
+    actions = np.asarray(table[ACTION]).reshape(-1).astype(np.int64)
+    if key == OBS_STATE:
+        states = np.asarray(table[OBS_STATE], dtype=np.float32)
+    else:
+        loader = torch.utils.data.DataLoader(dataset, batch_size=256, num_workers=0)
+        states = np.concatenate([(b[key] * 255).round().to(torch.uint8).numpy() for b in loader])
+    has_next = np.flatnonzero(episodes[:-1] == episodes[1:])
+    return Transitions(states[has_next], actions[has_next], states[has_next + 1])
+
+
+class IUPEPolicy(PreTrainedPolicy):
+    config_class = IUPEConfig
+    name = "iupe"
+
+    def __init__(self, config: IUPEConfig, dataset_stats: dict | None = None, dataset_meta=None, **kwargs):
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.is_image = config.observation_key == OBS_IMAGE
+        if dataset_meta is not None and config.env_settings is None:
+            config.env_settings = read_iupe_meta(dataset_meta.root).get("env")
+        if config.n_actions == 0:
+            if config.env_settings is None:
+                raise ValueError(
+                    "cannot tell the number of actions: the expert dataset has no meta/iupe.json; "
+                    "pass --policy.n_actions and --policy.env_settings"
+                )
+            config.n_actions = env_config_from_settings(config.env_settings).n_actions
+        obs_shape = tuple(config.input_features[config.observation_key].shape)
+        hidden, n = config.hidden_dim, config.n_actions
+        if self.is_image:
+            channels = obs_shape[0]
+            self.idm_encoder = ImageEncoder(2 * channels, config.cnn_width, hidden, config.attention)
+            self.pm_encoder = ImageEncoder(channels, config.cnn_width, hidden, config.attention)
+        else:
+            dim = obs_shape[0]
+            self.idm_encoder = VectorEncoder(2 * dim, config.token_dim, hidden, config.attention)
+            self.pm_encoder = VectorEncoder(dim, config.token_dim, hidden, config.attention)
+        self.idm_head, self.pm_head = nn.Linear(hidden, n), nn.Linear(hidden, n)
+        state_dim = 1 if self.is_image else obs_shape[0]
+        self.register_buffer("state_mean", torch.zeros(state_dim))
+        self.register_buffer("state_std", torch.ones(state_dim))
+        if not self.is_image and dataset_stats and OBS_STATE in dataset_stats:
+            self.state_mean.copy_(torch.as_tensor(np.asarray(dataset_stats[OBS_STATE]["mean"]), dtype=torch.float32))
+            std = torch.as_tensor(np.asarray(dataset_stats[OBS_STATE]["std"]), dtype=torch.float32)
+            self.state_std.copy_(std.clamp_min(1e-3))
+        self._dataset_meta = dataset_meta
+        self._training_state: dict | None = None
+        self._selected_state: dict | None = None
+        self.cycle_stats: dict[str, float] = {}
+        if dataset_meta is not None and not config.supervised:
+            self._check_training_inputs(dataset_meta)
+
+    # ------------------------------------------------------------ model functions
+
+    def _prepare(self, obs: Tensor) -> Tensor:
+        if self.is_image:
+            return obs.float() / 255.0 if obs.dtype == torch.uint8 else obs.float()
+        return (obs.float() - self.state_mean) / self.state_std
+
+    def idm_logits(self, state: Tensor, next_state: Tensor) -> Tensor:
+        s, s_next = self._prepare(state), self._prepare(next_state)
+        if self.is_image and not self.config.idm_frame_difference:
+            raise NotImplementedError("only the frame-difference IDM input is implemented for images")
+        return self.idm_head(self.idm_encoder(torch.cat([s, s_next - s], dim=1)))
+
+    def pm_logits(self, state: Tensor) -> Tensor:
+        return self.pm_head(self.pm_encoder(self._prepare(state)))
+
+    # ------------------------------------------------------------ LeRobot API
+
+    def get_optim_params(self):
+        return list(self.pm_encoder.parameters()) + list(self.pm_head.parameters())
+
+    def reset(self) -> None:
+        pass
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        return self.select_action(batch).unsqueeze(1)
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
+        """Greedy action of the policy model, as a float action id of shape (B, 1)."""
+        obs = batch[self.config.observation_key]
+        return self.pm_logits(obs).argmax(-1, keepdim=True).float()
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        obs = batch[self.config.observation_key]
+        state, next_state = obs[:, 0], obs[:, 1]
+        if self.config.supervised:
+            if batch.get(ACTION) is None:
+                raise ValueError("--policy.supervised=true needs a dataset with actions (--keep_actions=true)")
+            labels = batch[ACTION].reshape(len(state), -1)[:, 0].long()
+        else:
+            if self._training_state is None:
+                self._start_training()
+            with torch.no_grad():
+                idm_logits = self.idm_logits(state, next_state)
+            labels = choose_actions(idm_logits, self.config.exploration, self._training_state["torch_rng"])
+            self.cycle_stats["label_non_map"] = float((labels != idm_logits.argmax(-1)).float().mean())
+        logits = self.pm_logits(state)
+        loss = F.cross_entropy(logits, labels)
+        return loss, {"pm_loss": float(loss.detach()), **self.cycle_stats}
+
+    def update(self) -> None:
+        if self.config.supervised or self._training_state is None:
+            return
+        self._training_state["step"] += 1
+        if self._training_state["step"] % self.config.cycle_steps == 0:
+            self._end_cycle()
+
+    def _save_pretrained(self, save_directory: Path, state_dict: dict[str, Tensor] | None = None) -> None:
+        """Save the model selected by rollout success (the current one before any rollout)."""
+        if state_dict is None and self._selected_state is not None:
+            state_dict = self._selected_state
+        super()._save_pretrained(save_directory, state_dict)
+
+    # ------------------------------------------------------------ the algorithm
+
+    def _check_training_inputs(self, dataset_meta) -> None:
+        """Every check that can fail, before any training starts."""
+        cfg = self.config
+        key = cfg.observation_key
+        if cfg.env_settings is None:
+            raise ValueError(
+                f"the expert dataset at {dataset_meta.root} records no environment (meta/iupe.json); "
+                "pass --policy.env_settings='{type: cartpole}' (or the dataset's env)"
+            )
+        env_cfg = env_config_from_settings(cfg.env_settings)
+        env_key = "pixels" if key == OBS_IMAGE else "agent_pos"
+        if env_key not in env_cfg.features:
+            raise ValueError(f"env {env_cfg.type} gives no '{env_key}' observation but the dataset has '{key}'")
+        env_shape = tuple(env_cfg.features[env_key].shape)
+        data_shape = tuple(dataset_meta.features[key]["shape"])
+        if env_shape != data_shape:
+            raise ValueError(
+                f"env {env_cfg.type} observations have shape {env_shape} but the expert dataset's '{key}' has "
+                f"shape {data_shape}; the rollout environment must match the dataset"
+            )
+        if cfg.pre_demos_repo_id is None:
+            raise ValueError("--policy.pre_demos_repo_id is required (random pre-demonstrations with actions)")
+        root = cfg.pre_demos_root
+        if root is not None and not (Path(root) / "meta" / "info.json").exists():
+            raise FileNotFoundError(f"--policy.pre_demos_root={root} is not a LeRobot dataset (no meta/info.json)")
+        pre = LeRobotDataset(cfg.pre_demos_repo_id, root=root, video_backend="pyav")
+        if ACTION not in pre.features:
+            raise ValueError(
+                f"the pre-demonstrations {cfg.pre_demos_repo_id} have no 'action' column; "
+                "collect them with lerobot-iupe-collect --agent=random"
+            )
+        if key not in pre.features or tuple(pre.features[key]["shape"]) != data_shape:
+            got = tuple(pre.features[key]["shape"]) if key in pre.features else "missing"
+            raise ValueError(
+                f"the pre-demonstrations' '{key}' has shape {got} but the expert dataset's has {data_shape}"
+            )
+        pre_env = read_iupe_meta(pre.root).get("env")
+        if pre_env is not None:
+            pre_actions = env_config_from_settings(pre_env).n_actions
+            if pre_actions != cfg.n_actions:
+                raise ValueError(
+                    f"the pre-demonstrations come from {pre_env['type']} with {pre_actions} actions but the "
+                    f"expert data's env has {cfg.n_actions}"
+                )
+        self._pre_dataset = pre
+        self._env_cfg = env_cfg
+
+    def _device(self) -> torch.device:
+        return self.pm_head.weight.device
+
+    def _start_training(self) -> None:
+        cfg = self.config
+        if not hasattr(self, "_pre_dataset"):
+            if self._dataset_meta is None:
+                raise RuntimeError("IUPE training needs the expert dataset's metadata")
+            self._check_training_inputs(self._dataset_meta)
+        rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
+        pre = load_transitions(self._pre_dataset, cfg.observation_key)
+        size = cfg.sampled_set_size or len(pre)
+        self._training_state = {
+            "step": 0,
+            "cycle": 0,
+            "rank": rank,
+            "pre": pre,
+            "size": size,
+            "rng": np.random.default_rng([cfg.seed, rank]),
+            "torch_rng": torch.Generator(device="cpu").manual_seed(cfg.seed * 1000 + rank),
+            "idm_optimizer": torch.optim.Adam(
+                list(self.idm_encoder.parameters()) + list(self.idm_head.parameters()), lr=cfg.idm_lr
+            ),
+            "best_success": -1.0,
+        }
+        if self._training_state["torch_rng"].device != self._device():
+            self._training_state["torch_rng"] = None  # multinomial on another device: use the global generator
+        log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self._env_cfg.type}")
+        self._train_idm(pre)
+
+    def _train_idm(self, data: Transitions) -> None:
+        """Train the IDM on I^s (90%) and measure its accuracy on the held-out 10%."""
+        state = self._training_state
+        rng, device = state["rng"], self._device()
+        order = rng.permutation(len(data))
+        held = order[: max(1, len(order) // 10)]
+        train = order[len(held) :]
+        to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
+        self.train()
+        for _ in range(self.config.idm_epochs):
+            rng.shuffle(train)
+            for start in range(0, len(train), self.config.idm_batch_size):
+                idx = train[start : start + self.config.idm_batch_size]
+                logits = self.idm_logits(to(data.states[idx]), to(data.next_states[idx]))
+                loss = F.cross_entropy(logits, to(data.actions[idx]))
+                state["idm_optimizer"].zero_grad()
+                loss.backward()
+                state["idm_optimizer"].step()
+        with torch.no_grad():
+            correct = 0
+            for start in range(0, len(held), 1024):
+                idx = held[start : start + 1024]
+                pred = self.idm_logits(to(data.states[idx]), to(data.next_states[idx])).argmax(-1)
+                correct += int((pred == to(data.actions[idx])).sum())
+        self.cycle_stats.update({"idm_loss": float(loss.detach()), "idm_accuracy": correct / len(held)})
+
+    @torch.no_grad()
+    def rollout(self, episodes: int, seed: int, explore: bool) -> tuple[list[Transitions], np.ndarray, np.ndarray]:
+        """Run the PM in ``episodes`` environments at once (batched inference), one episode each."""
+        env_cfg = self._env_cfg
+        envs = [env_cfg.make() for _ in range(episodes)]
+        key = "pixels" if self.is_image else "agent_pos"
+        observations = [env.reset(seed=seed + i)[0][key] for i, env in enumerate(envs)]
+        records = [([], [], []) for _ in envs]
+        successes, returns = np.zeros(episodes, dtype=bool), np.zeros(episodes)
+        active = list(range(episodes))
+        generator = self._training_state["torch_rng"] if self._training_state else None
+        while active:
+            batch = np.stack([observations[i] for i in active])
+            obs = torch.as_tensor(batch, device=self._device())
+            if self.is_image:
+                obs = obs.permute(0, 3, 1, 2)
+            actions = choose_actions(self.pm_logits(obs), explore, generator).cpu().numpy()
+            still = []
+            for i, action in zip(active, actions, strict=True):
+                next_obs, reward, terminated, truncated, info = envs[i].step(int(action))
+                states, acts, nexts = records[i]
+                states.append(observations[i])
+                acts.append(int(action))
+                nexts.append(next_obs[key])
+                observations[i] = next_obs[key]
+                returns[i] += reward
+                successes[i] |= bool(info["is_success"])
+                if not (terminated or truncated):
+                    still.append(i)
+            active = still
+        for env in envs:
+            env.close()
+        transitions = []
+        for states, acts, nexts in records:
+            s, n = np.stack(states), np.stack(nexts)
+            if self.is_image:
+                s, n = s.transpose(0, 3, 1, 2), n.transpose(0, 3, 1, 2)
+            transitions.append(Transitions(s, np.asarray(acts, dtype=np.int64), n))
+        return transitions, successes, returns
+
+    def _end_cycle(self) -> None:
+        cfg, state = self.config, self._training_state
+        state["cycle"] += 1
+        seed = 1_000_000 * (1 + state["rank"]) + cfg.seed * 100_003 + state["cycle"] * cfg.rollout_episodes
+        episodes, successes, returns = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
+        success_rate = float(successes.mean())
+        if success_rate >= state["best_success"]:
+            state["best_success"] = success_rate
+            self._selected_state = copy.deepcopy(self.state_dict())
+        pre = state["pre"]
+        if cfg.sampling:
+            p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
+            good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
+            successful = Transitions.concat(good) if good else pre.take(np.arange(0))
+            sampled = build_sampled_set(pre, successful, p_success, state["size"], state["rng"])
+        else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
+            sampled = Transitions.concat([pre, *episodes])
+        self._train_idm(sampled)
+        self.cycle_stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
+        log.info(
+            f"IUPE cycle {state['cycle']}: success r={success_rate:.2f} return={returns.mean():.1f} "
+            f"IDM acc={self.cycle_stats['idm_accuracy']:.3f} non-MAP labels={self.cycle_stats.get('label_non_map', 0):.3f} "
+            f"|I^s|={len(sampled)} best r={state['best_success']:.2f}"
+        )
