@@ -41,6 +41,9 @@ class IUPEConfig(PreTrainedConfig):
     cnn_width: int = 16
     # Images: the IDM sees [s_t, s_{t+1} - s_t] (True) or encodes both frames with a shared encoder (False).
     idm_frame_difference: bool = True
+    # CPU threads for torch; 0 = 1 thread for vector states (tiny networks run several times faster without
+    # intra-op threading) and torch's default for images.
+    torch_threads: int = 0
     optimizer_lr: float = 1e-3
     seed: int = 0
     push_to_hub: bool = False

@@ -153,6 +153,9 @@ class IUPEPolicy(PreTrainedPolicy):
         config.validate_features()
         self.config = config
         self.is_image = config.observation_key == OBS_IMAGE
+        threads = config.torch_threads or (0 if self.is_image else 1)
+        if threads:
+            torch.set_num_threads(threads)
         if dataset_meta is not None and config.env_settings is None:
             config.env_settings = read_iupe_meta(dataset_meta.root).get("env")
         if config.n_actions == 0:
@@ -418,6 +421,7 @@ class IUPEPolicy(PreTrainedPolicy):
         self.cycle_stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
         log.info(
             f"IUPE cycle {state['cycle']}: success r={success_rate:.2f} return={returns.mean():.1f} "
-            f"IDM acc={self.cycle_stats['idm_accuracy']:.3f} non-MAP labels={self.cycle_stats.get('label_non_map', 0):.3f} "
+            f"IDM acc={self.cycle_stats['idm_accuracy']:.3f} "
+            f"non-MAP labels={self.cycle_stats.get('label_non_map', 0):.3f} "
             f"|I^s|={len(sampled)} best r={state['best_success']:.2f}"
         )

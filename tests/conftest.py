@@ -51,3 +51,31 @@ def maze_random(data_dir) -> Path:
         "--episodes=6",
         "--seed=50",
     )
+
+
+@pytest.fixture(scope="session")
+def cartpole_random(data_dir) -> Path:
+    return collect(
+        data_dir, "cartpole-random", "--env.type=cartpole", "--agent=random", "--episodes=400", "--seed=1000"
+    )
+
+
+@pytest.fixture(scope="session")
+def maze_expert(data_dir) -> Path:
+    return collect(data_dir, "maze3-expert", "--env.type=maze", "--env.size=3", "--agent=expert", "--episodes=4")
+
+
+def train_args(expert: Path, pre: Path, output: Path, *extra: str) -> list[str]:
+    return [
+        "--policy.type=iupe",
+        f"--dataset.repo_id=local/{expert.name}",
+        f"--dataset.root={expert}",
+        "--dataset.video_backend=pyav",
+        f"--policy.pre_demos_repo_id=local/{pre.name}",
+        f"--policy.pre_demos_root={pre}",
+        f"--output_dir={output}",
+        "--num_workers=0",
+        "--policy.device=cpu",
+        "--wandb.enable=false",
+        *extra,
+    ]

@@ -1,0 +1,125 @@
+import numpy as np
+import pytest
+import torch
+
+from lerobot_iupe.algorithm import (
+    Transitions,
+    apportion,
+    average_episodic_reward,
+    build_sampled_set,
+    choose_actions,
+    performance,
+    sampling_counts,
+    success_action_distribution,
+)
+
+N_ACTIONS = 3
+
+
+def make_transitions(actions, tag: float) -> Transitions:
+    actions = np.asarray(actions, dtype=np.int64)
+    states = np.stack([np.full(len(actions), tag), np.arange(len(actions)) * 1.0], axis=1)
+    return Transitions(states, actions, states + 1.0)
+
+
+@pytest.fixture
+def pre() -> Transitions:
+    return make_transitions(np.repeat(np.arange(N_ACTIONS), 100), tag=0.0)
+
+
+@pytest.fixture
+def successful() -> Transitions:
+    return make_transitions([0] * 30 + [1] * 10, tag=1.0)
+
+
+def test_eq1_uses_successful_runs_only_and_sums_to_r():
+    episodes = [np.array([0, 0, 1, 1]), np.array([2, 2, 2, 2]), np.array([0, 0, 0, 1])]
+    p = success_action_distribution(episodes, np.array([True, False, True]), N_ACTIONS)
+    np.testing.assert_allclose(p, [(0.5 + 0.75) / 3, (0.5 + 0.25) / 3, 0.0])
+    assert p.sum() == pytest.approx(2 / 3)
+
+
+def test_r_zero_gives_only_pre_demonstrations(pre, successful):
+    sampled = build_sampled_set(pre, successful, np.zeros(N_ACTIONS), 300, np.random.default_rng(0))
+    assert len(sampled) == 300 and np.all(sampled.states[:, 0] == 0.0)
+    assert np.bincount(sampled.actions).tolist() == [100, 100, 100]
+
+
+def test_r_one_gives_only_successful_transitions(pre, successful):
+    p = np.array([0.75, 0.25, 0.0])
+    sampled = build_sampled_set(pre, successful, p, 200, np.random.default_rng(0))
+    assert len(sampled) == 200 and np.all(sampled.states[:, 0] == 1.0)
+    assert np.bincount(sampled.actions, minlength=3).tolist() == [150, 50, 0]
+
+
+@pytest.mark.parametrize("size", [100, 301, 1000])
+def test_mixed_shares_follow_eq1_and_inverse_probability(pre, successful, size):
+    p = np.array([0.3, 0.1, 0.0])  # r = 0.4
+    sampled = build_sampled_set(pre, successful, p, size, np.random.default_rng(1))
+    assert len(sampled) == size
+    from_success = sampled.states[:, 0] == 1.0
+    assert abs(from_success.sum() - 0.4 * size) <= 1
+    success_counts = np.bincount(sampled.actions[from_success], minlength=3)
+    np.testing.assert_allclose(success_counts, p / p.sum() * round(0.4 * size), atol=1)
+    pre_counts = np.bincount(sampled.actions[~from_success], minlength=3)
+    inverse = (1 - p) / (1 - p).sum() * (size - round(0.4 * size))
+    np.testing.assert_allclose(pre_counts, inverse, atol=1)
+    assert (pre_counts > 0).all()  # every I_pre action still present
+
+
+def test_every_pre_action_survives_while_r_below_one():
+    from_success, from_pre = sampling_counts(np.array([0.9, 0.0, 0.0]), np.array([True, True, True]), 100)
+    assert from_success.tolist() == [90, 0, 0]
+    assert (from_pre >= 1).all() and from_pre.sum() == 10
+    _, from_pre = sampling_counts(np.array([0.5, 0.49, 0.0]), np.array([True, True, True]), 1000)
+    assert (from_pre >= 1).all() and from_pre.sum() == 10
+
+
+def test_actions_absent_from_pre_demonstrations_get_no_share():
+    _, from_pre = sampling_counts(np.zeros(3), np.array([True, False, True]), 10)
+    assert from_pre.tolist() == [5, 0, 5]
+
+
+def test_classes_smaller_than_their_share_are_drawn_with_replacement(pre):
+    few = make_transitions([0, 1], tag=1.0)
+    sampled = build_sampled_set(pre, few, np.array([0.5, 0.5, 0.0]), 50, np.random.default_rng(0))
+    assert len(sampled) == 50 and np.all(sampled.states[:, 0] == 1.0)
+
+
+def test_alignment_of_rollout_transitions_is_kept(pre):
+    # synthetic rollout on a line: s_{t+1} = s_t + (a_t == 1) - (a_t == 0)
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, 2, 50)
+    positions = np.concatenate([[0], np.cumsum(np.where(actions == 1, 1, -1))]).astype(float)
+    rollout = Transitions(positions[:-1, None], actions, positions[1:, None])
+    sampled = build_sampled_set(pre, rollout, np.array([0.5, 0.5, 0.0]), 40, rng)
+    delta = sampled.next_states[:, 0] - sampled.states[:, 0]
+    assert np.array_equal(delta, np.where(sampled.actions == 1, 1.0, -1.0))
+
+
+def test_apportion_is_exact():
+    assert apportion(10, np.array([1, 1, 1])).sum() == 10
+    assert apportion(0, np.array([1, 2])).tolist() == [0, 0]
+    assert apportion(7, np.array([0, 1, 0])).tolist() == [0, 7, 0]
+
+
+def test_argmax_without_exploration():
+    logits = torch.tensor([[0.0, 3.0, 1.0], [5.0, 0.0, 0.0]])
+    assert choose_actions(logits, explore=False).tolist() == [1, 0]
+
+
+def test_label_sampling_draws_once_per_row_with_softmax_frequencies():
+    logits = torch.log(torch.tensor([0.5, 0.3, 0.15, 0.05])).repeat(40_000, 1)
+    draws = choose_actions(logits, explore=True, generator=torch.Generator().manual_seed(0))
+    assert draws.shape == (40_000,)
+    freq = torch.bincount(draws, minlength=4).float() / len(draws)
+    torch.testing.assert_close(freq, torch.tensor([0.5, 0.3, 0.15, 0.05]), atol=0.01, rtol=0)
+    # rows are independent: different rows with the same logits do not all get the same label
+    assert len(set(draws[:100].tolist())) > 1
+
+
+def test_metrics():
+    assert performance(np.array([500.0, 500.0]), 500.0, 20.0) == 1.0
+    assert performance(np.array([20.0]), 500.0, 20.0) == 0.0
+    assert performance(np.array([260.0]), 500.0, 20.0) == pytest.approx(0.5)
+    assert average_episodic_reward(np.array([1.0, 3.0])) == 2.0

@@ -1,0 +1,63 @@
+import torch
+from lerobot.configs import FeatureType, PolicyFeature
+
+from lerobot_iupe.configuration_iupe import IUPEConfig
+from lerobot_iupe.modeling_iupe import IUPEPolicy, SpatialSelfAttention, TokenSelfAttention
+
+
+def test_token_attention_is_identity_at_gamma_zero_and_mixes_positions_otherwise():
+    torch.manual_seed(0)
+    attention = TokenSelfAttention(8)
+    x = torch.randn(3, 5, 8)
+    assert torch.equal(attention(x), x)
+    with torch.no_grad():
+        attention.gamma.fill_(1.0)
+    y = attention(x)
+    x2 = x.clone()
+    x2[:, 4] += 1.0  # change only the last position
+    assert not torch.allclose(attention(x2)[:, 0], y[:, 0])  # the first position's output moved too
+
+
+def test_spatial_attention_is_identity_at_gamma_zero_and_mixes_positions_otherwise():
+    torch.manual_seed(0)
+    attention = SpatialSelfAttention(8)
+    x = torch.randn(2, 8, 4, 4)
+    assert torch.equal(attention(x), x)
+    with torch.no_grad():
+        attention.gamma.fill_(1.0)
+    x2 = x.clone()
+    x2[:, :, 3, 3] += 1.0
+    assert not torch.allclose(attention(x2)[:, :, 0, 0], attention(x)[:, :, 0, 0])
+
+
+def make_policy(image: bool) -> IUPEPolicy:
+    key, shape = ("observation.image", (3, 64, 64)) if image else ("observation.state", (4,))
+    ftype = FeatureType.VISUAL if image else FeatureType.STATE
+    config = IUPEConfig(
+        input_features={key: PolicyFeature(type=ftype, shape=shape)},
+        n_actions=4 if image else 2,
+        env_settings={"type": "maze", "size": 3} if image else {"type": "cartpole"},
+        device="cpu",
+    )
+    return IUPEPolicy(config)
+
+
+def test_save_load_gives_identical_actions(tmp_path):
+    for image in (False, True):
+        torch.manual_seed(1)
+        policy = make_policy(image)
+        key = policy.config.observation_key
+        obs = torch.rand(6, *policy.config.input_features[key].shape)
+        actions = policy.select_action({key: obs})
+        assert actions.shape == (6, 1)
+        policy.save_pretrained(tmp_path / str(image))
+        loaded = IUPEPolicy.from_pretrained(tmp_path / str(image))
+        assert torch.equal(loaded.select_action({key: obs}), actions)
+        assert loaded.config.n_actions == policy.config.n_actions
+
+
+def test_idm_and_pm_output_one_logit_per_action():
+    policy = make_policy(image=True)
+    s, s_next = torch.rand(2, 3, 64, 64), torch.rand(2, 3, 64, 64)
+    assert policy.idm_logits(s, s_next).shape == (2, 4)
+    assert policy.pm_logits(s).shape == (2, 4)

@@ -1,0 +1,134 @@
+"""IUPE through the real lerobot-train and lerobot-eval CLIs."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from conftest import run_cli, train_args
+from lerobot.datasets import LeRobotDataset
+
+CHECKPOINT = "checkpoints/last/pretrained_model"
+
+
+def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
+    run_cli(
+        "lerobot-eval",
+        f"--policy.path={checkpoint}",
+        *env_args,
+        f"--eval.n_episodes={episodes}",
+        f"--eval.batch_size={episodes}",
+        f"--output_dir={output}",
+        "--policy.device=cpu",
+        "--seed=500000",
+    )
+    return json.loads((output / "eval_info.json").read_text())["overall"]
+
+
+def test_iupe_learns_cartpole_from_state_only_demos(cartpole_expert, cartpole_random, tmp_path):
+    out = tmp_path / "train"
+    run_cli(
+        "lerobot-train",
+        *train_args(
+            cartpole_expert,
+            cartpole_random,
+            out,
+            "--steps=200",
+            "--batch_size=128",
+            "--save_freq=200",
+            "--log_freq=50",
+            "--policy.cycle_steps=50",
+        ),
+    )
+    checkpoint = out / CHECKPOINT
+    assert (checkpoint / "model.safetensors").exists() and (checkpoint / "config.json").exists()
+    # 20 evaluation episodes on seeds 500000… never used in training (data 0…9 and 1000…1399, rollouts ≥ 1e6)
+    result = evaluate(checkpoint, tmp_path / "eval", "--env.type=cartpole", episodes=20)
+    assert result["avg_sum_reward"] >= 475
+    assert result["pc_success"] >= 95
+
+
+def test_maze_policy_trains_and_lerobot_eval_runs(maze_expert, maze_random, tmp_path):
+    out = tmp_path / "train"
+    run_cli(
+        "lerobot-train",
+        *train_args(
+            maze_expert,
+            maze_random,
+            out,
+            "--steps=4",
+            "--batch_size=8",
+            "--save_freq=4",
+            "--policy.cycle_steps=2",
+            "--policy.rollout_episodes=2",
+            "--policy.idm_epochs=1",
+        ),
+    )
+    result = evaluate(out / CHECKPOINT, tmp_path / "eval", "--env.type=maze", "--env.size=3", episodes=2)
+    assert result["n_episodes"] == 2 and 0 <= result["pc_success"] <= 100
+
+
+def make_dataset_without_observation(root):
+    dataset = LeRobotDataset.create(
+        "local/no-obs",
+        fps=10,
+        root=root,
+        features={"observation.environment_state": {"dtype": "float32", "shape": (2,), "names": None}},
+        use_videos=False,
+    )
+    for _ in range(3):
+        dataset.add_frame({"observation.environment_state": np.array([0.0, 1.0], dtype=np.float32), "task": "t"})
+    dataset.save_episode()
+    dataset.finalize()
+    return root
+
+
+def relabel_env(root, env: dict):
+    meta_path = root / "meta" / "iupe.json"
+    meta = json.loads(meta_path.read_text())
+    meta["env"] = env
+    meta_path.write_text(json.dumps(meta))
+    return root
+
+
+@pytest.mark.parametrize(
+    ("case", "message"),
+    [
+        ("no_observation", "neither 'observation.state' nor 'observation.image'"),
+        ("pre_without_action", "have no 'action' column"),
+        ("pre_other_state_size", "the pre-demonstrations' 'observation.state' has shape (2,)"),
+        ("pre_other_action_count", "with 3 actions but the expert data's env has 2"),
+        ("env_mismatch", "env acrobot observations have shape (6,)"),
+        ("missing_pre", "is not a LeRobot dataset"),
+    ],
+)
+def test_bad_training_input_fails_before_training(case, message, cartpole_expert, cartpole_random, data_dir, tmp_path):
+    expert, pre, extra = cartpole_expert, cartpole_random, []
+    if case == "no_observation":
+        expert = make_dataset_without_observation(tmp_path / "no-obs")
+        extra = ["--policy.n_actions=2", '--policy.env_settings={"type": "cartpole"}']
+    elif case == "pre_without_action":
+        pre = cartpole_expert
+    elif case == "pre_other_state_size":
+        pre = tmp_path / "mc"
+        run_cli(
+            "lerobot-iupe-collect",
+            "--env.type=mountaincar",
+            "--agent=random",
+            "--episodes=1",
+            "--dataset.repo_id=local/mc",
+            f"--dataset.root={pre}",
+        )
+    elif case == "pre_other_action_count":
+        pre = tmp_path / "cartpole-random-copy"
+        shutil.copytree(cartpole_random, pre)
+        relabel_env(pre, {"type": "mountaincar", "episode_length": 200})
+    elif case == "env_mismatch":
+        extra = ['--policy.env_settings={"type": "acrobot"}']
+    elif case == "missing_pre":
+        pre = tmp_path / "does-not-exist"
+    out = tmp_path / "train"
+    result = run_cli("lerobot-train", *train_args(expert, pre, out, "--steps=2", *extra), check=False)
+    assert result.returncode != 0
+    assert message in result.stderr + result.stdout
+    assert not (out / "checkpoints").exists()
