@@ -18,6 +18,7 @@ def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
         *env_args,
         f"--eval.n_episodes={episodes}",
         f"--eval.batch_size={episodes}",
+        "--eval.use_async_envs=false",
         f"--output_dir={output}",
         "--policy.device=cpu",
         "--seed=500000",
