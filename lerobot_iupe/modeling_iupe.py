@@ -122,6 +122,37 @@ class ImageEncoder(nn.Module):
         return self.head(self.pool(x).flatten(1))
 
 
+class ResNet18Encoder(nn.Module):
+    """torchvision ResNet-18 (random init; no download at run time) with self-attention after layer1 and layer2,
+    as in the paper's image setting. Meant for GPU runs at larger resolutions (e.g. 224 px)."""
+
+    def __init__(self, in_channels: int, hidden: int, attention: bool):
+        super().__init__()
+        from torchvision.models import resnet18
+
+        net = resnet18(weights=None)
+        if in_channels != 3:
+            net.conv1 = nn.Conv2d(in_channels, 64, 7, 2, 3, bias=False)
+        self.stem = nn.Sequential(net.conv1, net.bn1, net.relu, net.maxpool)
+        self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
+        self.attention1 = SpatialSelfAttention(64) if attention else nn.Identity()
+        self.attention2 = SpatialSelfAttention(128) if attention else nn.Identity()
+        self.head = nn.Sequential(nn.Linear(512, hidden), nn.ReLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = self.attention1(self.layer1(self.stem(x)))
+        x = self.layer4(self.layer3(self.attention2(self.layer2(x))))
+        return self.head(torch.flatten(F.adaptive_avg_pool2d(x, 1), 1))
+
+
+def make_image_encoder(config: IUPEConfig, in_channels: int) -> nn.Module:
+    if config.image_backbone == "resnet18":
+        return ResNet18Encoder(in_channels, config.hidden_dim, config.attention)
+    if config.image_backbone == "cnn":
+        return ImageEncoder(in_channels, config.cnn_width, config.hidden_dim, config.attention)
+    raise ValueError(f"--policy.image_backbone must be 'cnn' or 'resnet18', got {config.image_backbone!r}")
+
+
 # ---------------------------------------------------------------- policy
 
 
@@ -169,8 +200,8 @@ class IUPEPolicy(PreTrainedPolicy):
         hidden, n = config.hidden_dim, config.n_actions
         if self.is_image:
             channels = obs_shape[0]
-            self.idm_encoder = ImageEncoder(2 * channels, config.cnn_width, hidden, config.attention)
-            self.pm_encoder = ImageEncoder(channels, config.cnn_width, hidden, config.attention)
+            self.idm_encoder = make_image_encoder(config, 2 * channels)
+            self.pm_encoder = make_image_encoder(config, channels)
         else:
             dim = obs_shape[0]
             self.idm_encoder = VectorEncoder(2 * dim, config.token_dim, hidden, config.attention)
@@ -352,12 +383,14 @@ class IUPEPolicy(PreTrainedPolicy):
                 state["idm_optimizer"].zero_grad()
                 loss.backward()
                 state["idm_optimizer"].step()
+        self.eval()
         with torch.no_grad():
             correct = 0
             for start in range(0, len(held), 1024):
                 idx = held[start : start + 1024]
                 pred = self.idm_logits(to(data.states[idx]), to(data.next_states[idx])).argmax(-1)
                 correct += int((pred == to(data.actions[idx])).sum())
+        self.train()
         self.cycle_stats.update({"idm_loss": float(loss.detach()), "idm_accuracy": correct / len(held)})
 
     @torch.no_grad()
@@ -371,6 +404,8 @@ class IUPEPolicy(PreTrainedPolicy):
         successes, returns = np.zeros(episodes, dtype=bool), np.zeros(episodes)
         active = list(range(episodes))
         generator = self._training_state["torch_rng"] if self._training_state else None
+        was_training = self.training
+        self.eval()  # batch-norm layers (ResNet-18) must not update their statistics on rollout batches
         while active:
             batch = np.stack([observations[i] for i in active])
             obs = torch.as_tensor(batch, device=self._device())
@@ -390,6 +425,7 @@ class IUPEPolicy(PreTrainedPolicy):
                 if not (terminated or truncated):
                     still.append(i)
             active = still
+        self.train(was_training)
         for env in envs:
             env.close()
         transitions = []

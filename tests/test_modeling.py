@@ -30,7 +30,7 @@ def test_spatial_attention_is_identity_at_gamma_zero_and_mixes_positions_otherwi
     assert not torch.allclose(attention(x2)[:, :, 0, 0], attention(x)[:, :, 0, 0])
 
 
-def make_policy(image: bool) -> IUPEPolicy:
+def make_policy(image: bool, **overrides) -> IUPEPolicy:
     key, shape = ("observation.image", (3, 64, 64)) if image else ("observation.state", (4,))
     ftype = FeatureType.VISUAL if image else FeatureType.STATE
     config = IUPEConfig(
@@ -38,6 +38,7 @@ def make_policy(image: bool) -> IUPEPolicy:
         n_actions=4 if image else 2,
         env_settings={"type": "maze", "size": 3} if image else {"type": "cartpole"},
         device="cpu",
+        **overrides,
     )
     return IUPEPolicy(config)
 
@@ -61,3 +62,11 @@ def test_idm_and_pm_output_one_logit_per_action():
     s, s_next = torch.rand(2, 3, 64, 64), torch.rand(2, 3, 64, 64)
     assert policy.idm_logits(s, s_next).shape == (2, 4)
     assert policy.pm_logits(s).shape == (2, 4)
+
+
+def test_resnet18_backbone_builds_and_runs():
+    policy = make_policy(image=True, image_backbone="resnet18")
+    policy.eval()
+    s = torch.rand(2, 3, 64, 64)
+    assert policy.idm_logits(s, s).shape == (2, 4) and policy.pm_logits(s).shape == (2, 4)
+    assert policy.pm_encoder.attention1.gamma.item() == 0.0
