@@ -184,6 +184,8 @@ class IUPEPolicy(PreTrainedPolicy):
         config.validate_features()
         self.config = config
         self.is_image = config.observation_key == OBS_IMAGE
+        config.idm_epochs = config.idm_epochs or (5 if self.is_image else 2)
+        config.idm_batch_size = config.idm_batch_size or (64 if self.is_image else 256)
         threads = config.torch_threads or (0 if self.is_image else 1)
         if threads:
             torch.set_num_threads(threads)
@@ -218,6 +220,11 @@ class IUPEPolicy(PreTrainedPolicy):
         self._training_state: dict | None = None
         self._selected_state: dict | None = None
         self.cycle_stats: dict[str, float] = {}
+        if dataset_meta is not None and config.supervised and ACTION not in dataset_meta.features:
+            raise ValueError(
+                f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
+                "(collect it with --keep_actions=true)"
+            )
         if dataset_meta is not None and not config.supervised:
             self._check_training_inputs(dataset_meta)
 

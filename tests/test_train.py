@@ -133,3 +133,48 @@ def test_bad_training_input_fails_before_training(case, message, cartpole_expert
     assert result.returncode != 0
     assert message in result.stderr + result.stdout
     assert not (out / "checkpoints").exists()
+
+
+def test_bco_and_supervised_bc_run_through_the_same_loop(cartpole_expert, cartpole_random, data_dir, tmp_path):
+    bco = tmp_path / "bco"
+    run_cli(
+        "lerobot-train",
+        *train_args(
+            cartpole_expert,
+            cartpole_random,
+            bco,
+            "--steps=20",
+            "--batch_size=64",
+            "--policy.cycle_steps=10",
+            "--policy.rollout_episodes=4",
+            "--policy.sampling=false",
+            "--policy.exploration=false",
+            "--policy.attention=false",
+        ),
+    )
+    config = json.loads((bco / CHECKPOINT / "config.json").read_text())
+    assert (config["sampling"], config["exploration"], config["attention"]) == (False, False, False)
+    labelled = data_dir / "cartpole-expert-labelled"
+    run_cli(
+        "lerobot-iupe-collect",
+        "--env.type=cartpole",
+        "--agent=expert",
+        "--episodes=3",
+        "--keep_actions=true",
+        "--dataset.repo_id=local/labelled",
+        f"--dataset.root={labelled}",
+    )
+    bc = tmp_path / "bc"
+    run_cli("lerobot-train", *train_args(labelled, cartpole_random, bc, "--steps=20", "--policy.supervised=true"))
+    assert (bc / CHECKPOINT / "model.safetensors").exists()
+
+
+def test_supervised_without_actions_is_refused(cartpole_expert, cartpole_random, tmp_path):
+    out = tmp_path / "bc"
+    result = run_cli(
+        "lerobot-train",
+        *train_args(cartpole_expert, cartpole_random, out, "--steps=2", "--policy.supervised=true"),
+        check=False,
+    )
+    assert result.returncode != 0 and "--keep_actions=true" in result.stderr + result.stdout
+    assert not (out / "checkpoints").exists()
