@@ -43,8 +43,6 @@ class IUPEConfig(PreTrainedConfig):
     cnn_width: int = 16
     # Image encoder: "cnn" (compact residual CNN, CPU-sized at 64 px) or "resnet18" (torchvision, for GPU runs).
     image_backbone: str = "cnn"
-    # Images: the IDM sees [s_t, s_{t+1} - s_t] (True) or encodes both frames with a shared encoder (False).
-    idm_frame_difference: bool = True
     # CPU threads for torch; 0 = 1 thread for vector states (tiny networks run several times faster without
     # intra-op threading) and torch's default for images.
     torch_threads: int = 0

@@ -178,3 +178,13 @@ def test_supervised_without_actions_is_refused(cartpole_expert, cartpole_random,
     )
     assert result.returncode != 0 and "--keep_actions=true" in result.stderr + result.stdout
     assert not (out / "checkpoints").exists()
+
+
+def test_resume_continues_training(cartpole_expert, cartpole_random, tmp_path):
+    out = tmp_path / "train"
+    args = ["--steps=10", "--batch_size=64", "--save_freq=10", "--policy.cycle_steps=5", "--policy.rollout_episodes=2"]
+    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, out, *args))
+    config = out / CHECKPOINT / "train_config.json"
+    result = run_cli("lerobot-train", f"--config_path={config}", "--resume=true", "--steps=20")
+    assert "IUPE cycle" in result.stdout + result.stderr
+    assert (out / "checkpoints" / "000020" / "pretrained_model" / "model.safetensors").exists()
