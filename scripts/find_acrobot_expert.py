@@ -17,10 +17,11 @@ import gymnasium as gym
 import numpy as np
 from safetensors.numpy import save_file
 
+from lerobot_iupe.envs.acrobot_dynamics import observation, step, tip_height
+
 HIDDEN = 16
 SHAPES = {"w1": (6, HIDDEN), "b1": (HIDDEN,), "w2": (HIDDEN, 3), "b2": (3,)}
 N_PARAMS = sum(int(np.prod(s)) for s in SHAPES.values())
-DT = 0.2
 MAX_STEPS = 500
 
 
@@ -34,37 +35,6 @@ def unflatten(theta: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def derivs(s: np.ndarray, torque: np.ndarray) -> np.ndarray:
-    m1 = m2 = 1.0
-    l1, lc1, lc2, i1, i2, g = 1.0, 0.5, 0.5, 1.0, 1.0, 9.8
-    t1, t2, dt1, dt2 = s[..., 0], s[..., 1], s[..., 2], s[..., 3]
-    d1 = m1 * lc1**2 + m2 * (l1**2 + lc2**2 + 2 * l1 * lc2 * np.cos(t2)) + i1 + i2
-    d2 = m2 * (lc2**2 + l1 * lc2 * np.cos(t2)) + i2
-    phi2 = m2 * lc2 * g * np.cos(t1 + t2 - np.pi / 2.0)
-    phi1 = (
-        -m2 * l1 * lc2 * dt2**2 * np.sin(t2)
-        - 2 * m2 * l1 * lc2 * dt2 * dt1 * np.sin(t2)
-        + (m1 * lc1 + m2 * l1) * g * np.cos(t1 - np.pi / 2)
-        + phi2
-    )
-    ddt2 = (torque + d2 / d1 * phi1 - m2 * l1 * lc2 * dt1**2 * np.sin(t2) - phi2) / (m2 * lc2**2 + i2 - d2**2 / d1)
-    ddt1 = -(d2 * ddt2 + phi1) / d1
-    return np.stack([dt1, dt2, ddt1, ddt2], axis=-1)
-
-
-def step(s: np.ndarray, torque: np.ndarray) -> np.ndarray:
-    k1 = derivs(s, torque)
-    k2 = derivs(s + DT / 2 * k1, torque)
-    k3 = derivs(s + DT / 2 * k2, torque)
-    k4 = derivs(s + DT * k3, torque)
-    ns = s + DT / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-    ns[..., 0] = (ns[..., 0] + np.pi) % (2 * np.pi) - np.pi
-    ns[..., 1] = (ns[..., 1] + np.pi) % (2 * np.pi) - np.pi
-    ns[..., 2] = np.clip(ns[..., 2], -4 * np.pi, 4 * np.pi)
-    ns[..., 3] = np.clip(ns[..., 3], -9 * np.pi, 9 * np.pi)
-    return ns
-
-
 def batched_returns(theta: np.ndarray, episodes: int, rng: np.random.Generator) -> np.ndarray:
     """Mean return of each of the P parameter vectors over `episodes` random starts."""
     w = unflatten(theta)
@@ -73,15 +43,12 @@ def batched_returns(theta: np.ndarray, episodes: int, rng: np.random.Generator) 
     returns = np.zeros((pop, episodes))
     alive = np.ones((pop, episodes), dtype=bool)
     for _ in range(MAX_STEPS):
-        obs = np.stack(
-            [np.cos(s[..., 0]), np.sin(s[..., 0]), np.cos(s[..., 1]), np.sin(s[..., 1]), s[..., 2], s[..., 3]],
-            axis=-1,
-        )
+        obs = observation(s)
         h = np.tanh(np.einsum("pei,pih->peh", obs, w["w1"]) + w["b1"][:, None, :])
         logits = np.einsum("peh,pha->pea", h, w["w2"]) + w["b2"][:, None, :]
         torque = logits.argmax(-1).astype(np.float64) - 1.0
         s = np.where(alive[..., None], step(s, torque), s)
-        done = -np.cos(s[..., 0]) - np.cos(s[..., 1] + s[..., 0]) > 1.0
+        done = tip_height(s) > 1.0
         returns -= alive & ~done
         alive &= ~done
         if not alive.any():
