@@ -258,9 +258,10 @@ class IUPEPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
-        """Greedy action of the policy model, as a float action id of shape (B, 1)."""
+        """Action of the policy model as a float action id of shape (B, 1): drawn from its softmax when
+        ``exploration`` is on (IUPE's policy acts by sampling, in rollouts and in evaluation), else the argmax."""
         obs = batch[self.config.observation_key]
-        return self.pm_logits(obs).argmax(-1, keepdim=True).float()
+        return choose_actions(self.pm_logits(obs), self.config.exploration).unsqueeze(-1).float()
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         obs = batch[self.config.observation_key]
