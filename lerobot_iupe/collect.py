@@ -40,6 +40,7 @@ class CollectConfig:
     dataset: DatasetTarget = field(default_factory=DatasetTarget)
     # Which built-in agent plays: "expert" or "random".
     agent: str = "expert"
+    # Number of episodes to record.
     episodes: int = 20
     # Episode i is reset with seed `seed + i` (mazes: on layout `seed + i`).
     seed: int = 0
@@ -49,6 +50,7 @@ class CollectConfig:
     random_start: bool = False
     # Replace an existing dataset root (the old one is kept until the new one is complete).
     overwrite: bool = False
+    # Push the finished dataset and its card to the hub as --dataset.repo_id (HF_ENDPOINT, your token).
     push_to_hub: bool = False
 
     def validate(self) -> None:

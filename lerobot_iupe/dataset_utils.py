@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -66,12 +67,14 @@ def staged_directory(final: Path, overwrite: bool) -> Iterator[Path]:
     shutil.rmtree(backup, ignore_errors=True)
 
 
+class CommandError(RuntimeError):
+    """A failure outside the package's control (a hub refusing, say) that the user can act on."""
+
+
 def run_cli(main: Callable[[], object]) -> None:
     """Run a CLI body; turn the package's input errors into one clear line and exit code 2."""
-    import sys
-
     try:
         main()
-    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as error:
+    except (ValueError, FileExistsError, FileNotFoundError, CommandError) as error:
         print(f"error: {error}", file=sys.stderr)
         sys.exit(2)

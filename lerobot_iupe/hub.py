@@ -12,7 +12,7 @@ from lerobot.datasets.dataset_metadata import CODEBASE_VERSION
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
-from lerobot_iupe.dataset_utils import read_iupe_meta
+from lerobot_iupe.dataset_utils import CommandError, read_iupe_meta
 
 CARD_TEMPLATE = Path(__file__).resolve().parents[1] / "datasets_cards" / "iupe_demonstrations.md"
 CARD_TAGS = ["LeRobot", "imitation-from-observation", "iupe"]
@@ -22,7 +22,7 @@ AGENT_DESCRIPTIONS = {
 }
 
 
-class HubError(RuntimeError):
+class HubError(CommandError):
     """The hub refused or could not be reached; the local dataset is untouched."""
 
 
