@@ -7,7 +7,7 @@ from pathlib import Path
 
 from huggingface_hub import DatasetCard, DatasetCardData, HfApi, constants
 from huggingface_hub.errors import RevisionNotFoundError
-from lerobot.datasets import LeRobotDataset
+from lerobot.datasets import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_metadata import CODEBASE_VERSION
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
@@ -28,9 +28,8 @@ class HubError(CommandError):
 
 def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> DatasetCard:
     """Fill the package's card template from the dataset's metadata."""
-    dataset = LeRobotDataset(repo_id, root=root)
+    info = LeRobotDatasetMetadata(repo_id, root=root).info
     meta = read_iupe_meta(root)
-    info = dataset.meta.info
     obs_key = OBS_IMAGE if OBS_IMAGE in info.features else OBS_STATE
     env = meta.get("env", {"type": info.robot_type})
     seeds = meta.get("seeds", [0])

@@ -217,6 +217,8 @@ class IUPEPolicy(PreTrainedPolicy):
             std = torch.as_tensor(np.asarray(dataset_stats[OBS_STATE]["std"]), dtype=torch.float32)
             self.state_std.copy_(std.clamp_min(1e-3))
         self._dataset_meta = dataset_meta
+        self._pre_dataset: LeRobotDataset | None = None  # set by _check_training_inputs
+        self._rollout_envs: list = []  # created once, reused by every cycle
         self._training_state: dict | None = None
         self._selected_state: dict | None = None
         self.cycle_stats: dict[str, float] = {}
@@ -348,7 +350,7 @@ class IUPEPolicy(PreTrainedPolicy):
 
     def _start_training(self) -> None:
         cfg = self.config
-        if not hasattr(self, "_pre_dataset"):
+        if self._pre_dataset is None:
             if self._dataset_meta is None:
                 raise RuntimeError("IUPE training needs the expert dataset's metadata")
             self._check_training_inputs(self._dataset_meta)
@@ -405,7 +407,9 @@ class IUPEPolicy(PreTrainedPolicy):
     def rollout(self, episodes: int, seed: int, explore: bool) -> tuple[list[Transitions], np.ndarray, np.ndarray]:
         """Run the PM in ``episodes`` environments at once (batched inference), one episode each."""
         env_cfg = self._env_cfg
-        envs = [env_cfg.make() for _ in range(episodes)]
+        while len(self._rollout_envs) < episodes:
+            self._rollout_envs.append(env_cfg.make())
+        envs = self._rollout_envs[:episodes]
         key = "pixels" if self.is_image else "agent_pos"
         observations = [env.reset(seed=seed + i)[0][key] for i, env in enumerate(envs)]
         records = [([], [], []) for _ in envs]
@@ -434,8 +438,6 @@ class IUPEPolicy(PreTrainedPolicy):
                     still.append(i)
             active = still
         self.train(was_training)
-        for env in envs:
-            env.close()
         transitions = []
         for states, acts, nexts in records:
             s, n = np.stack(states), np.stack(nexts)

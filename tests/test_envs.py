@@ -89,10 +89,9 @@ def test_maze_layout_ranges():
 
 
 def test_cartpole_success_is_the_papers_goal():
-    env = CartPoleEnvConfig().make()
-    env.reset(seed=0)
     from lerobot_iupe.experts import cartpole_expert
 
+    env = CartPoleEnvConfig().make()
     obs, _ = env.reset(seed=0)
     for step in range(1, 200):
         obs, _, _, _, info = env.step(cartpole_expert(env, obs))
