@@ -49,11 +49,13 @@ def staged_directory(final: Path, overwrite: bool) -> Iterator[Path]:
     """Yield a fresh sibling directory to build into; on success swap it in for ``final``.
 
     On any exception the staged directory is removed and ``final`` is untouched. The swap is two renames on
-    the same filesystem, so a process killed at any moment leaves either the old or the new dataset at
-    ``final`` (plus, at worst, a hidden leftover sibling that the next run ignores)."""
+    the same filesystem, so a process killed at any moment leaves the old or the new dataset at ``final`` —
+    or, killed between the two renames, only the hidden old copy — plus hidden siblings named after the dead
+    process, which the next run on ``final`` (``recover_interrupted_swap``) puts back or removes."""
+    recover_interrupted_swap(final)
     check_writable(final, overwrite)
     final.parent.mkdir(parents=True, exist_ok=True)
-    token = uuid.uuid4().hex[:8]
+    token = f"{os.getpid()}-{uuid.uuid4().hex[:8]}"
     staged = final.parent / f".{final.name}.partial-{token}"
     try:
         yield staged
@@ -65,6 +67,32 @@ def staged_directory(final: Path, overwrite: bool) -> Iterator[Path]:
         os.rename(final, backup)
     os.rename(staged, final)
     shutil.rmtree(backup, ignore_errors=True)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def recover_interrupted_swap(final: Path) -> None:
+    """Clean up after a killed writer of ``final``: if it died between the two renames of a swap (``final``
+    missing, its old copy hidden beside it), put the old copy back; remove staged copies of dead processes."""
+    leftovers = []
+    for kind in ("old", "partial"):
+        for path in final.parent.glob(f".{final.name}.{kind}-*"):
+            pid = path.name.rsplit(f".{kind}-", 1)[1].split("-")[0]
+            if pid.isdigit() and not _pid_alive(int(pid)):
+                leftovers.append((kind, path))
+    for kind, path in sorted(leftovers, key=lambda item: item[0] != "old"):
+        if kind == "old" and not final.exists():
+            os.rename(path, final)
+        else:
+            shutil.rmtree(path, ignore_errors=True)
 
 
 class CommandError(RuntimeError):

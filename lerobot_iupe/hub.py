@@ -58,6 +58,7 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
         observation_shape=tuple(info.features[obs_key]["shape"]),
         is_video=info.features[obs_key]["dtype"] == "video",
         has_actions=ACTION in info.features,
+        relabelled_by=meta.get("relabelled_by"),
         n_actions=env_cls().n_actions,
         env_settings=env,
         mean_return=f"{meta.get('mean_return', float('nan')):.2f}",

@@ -1,3 +1,4 @@
+import json
 import os
 import subprocess
 import sys
@@ -79,3 +80,62 @@ def train_args(expert: Path, pre: Path, output: Path, *extra: str) -> list[str]:
         "--wandb.enable=false",
         *extra,
     ]
+
+
+CHECKPOINT = "checkpoints/last/pretrained_model"
+
+
+@pytest.fixture(scope="session")
+def cartpole_run(cartpole_expert, cartpole_random, tmp_path_factory) -> Path:
+    """A normal small IUPE training run on CartPole (200 steps); its output directory."""
+    out = tmp_path_factory.mktemp("runs") / "cartpole"
+    run_cli(
+        "lerobot-train",
+        *train_args(
+            cartpole_expert,
+            cartpole_random,
+            out,
+            "--steps=200",
+            "--batch_size=128",
+            "--save_freq=200",
+            "--log_freq=50",
+            "--policy.cycle_steps=50",
+        ),
+    )
+    return out
+
+
+@pytest.fixture(scope="session")
+def maze_run(maze_expert, maze_random, tmp_path_factory) -> Path:
+    """A tiny Maze 3×3 run (4 steps): a real image checkpoint, not a trained one."""
+    out = tmp_path_factory.mktemp("runs") / "maze"
+    run_cli(
+        "lerobot-train",
+        *train_args(
+            maze_expert,
+            maze_random,
+            out,
+            "--steps=4",
+            "--batch_size=8",
+            "--save_freq=4",
+            "--policy.cycle_steps=2",
+            "--policy.rollout_episodes=2",
+            "--policy.idm_epochs=1",
+        ),
+    )
+    return out
+
+
+def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
+    run_cli(
+        "lerobot-eval",
+        f"--policy.path={checkpoint}",
+        *env_args,
+        f"--eval.n_episodes={episodes}",
+        f"--eval.batch_size={episodes}",
+        "--eval.use_async_envs=false",
+        f"--output_dir={output}",
+        "--policy.device=cpu",
+        "--seed=500000",
+    )
+    return json.loads((output / "eval_info.json").read_text())["overall"]

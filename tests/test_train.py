@@ -5,43 +5,12 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import run_cli, train_args
+from conftest import CHECKPOINT, evaluate, run_cli, train_args
 from lerobot.datasets import LeRobotDataset
 
-CHECKPOINT = "checkpoints/last/pretrained_model"
 
-
-def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
-    run_cli(
-        "lerobot-eval",
-        f"--policy.path={checkpoint}",
-        *env_args,
-        f"--eval.n_episodes={episodes}",
-        f"--eval.batch_size={episodes}",
-        "--eval.use_async_envs=false",
-        f"--output_dir={output}",
-        "--policy.device=cpu",
-        "--seed=500000",
-    )
-    return json.loads((output / "eval_info.json").read_text())["overall"]
-
-
-def test_iupe_learns_cartpole_from_state_only_demos(cartpole_expert, cartpole_random, tmp_path):
-    out = tmp_path / "train"
-    run_cli(
-        "lerobot-train",
-        *train_args(
-            cartpole_expert,
-            cartpole_random,
-            out,
-            "--steps=200",
-            "--batch_size=128",
-            "--save_freq=200",
-            "--log_freq=50",
-            "--policy.cycle_steps=50",
-        ),
-    )
-    checkpoint = out / CHECKPOINT
+def test_iupe_learns_cartpole_from_state_only_demos(cartpole_run, tmp_path):
+    checkpoint = cartpole_run / CHECKPOINT
     assert (checkpoint / "model.safetensors").exists() and (checkpoint / "config.json").exists()
     # 20 evaluation episodes on seeds 500000… never used in training (data 0…9 and 1000…1399, rollouts ≥ 1e6)
     result = evaluate(checkpoint, tmp_path / "eval", "--env.type=cartpole", episodes=20)
@@ -49,23 +18,8 @@ def test_iupe_learns_cartpole_from_state_only_demos(cartpole_expert, cartpole_ra
     assert result["pc_success"] >= 95
 
 
-def test_maze_policy_trains_and_lerobot_eval_runs(maze_expert, maze_random, tmp_path):
-    out = tmp_path / "train"
-    run_cli(
-        "lerobot-train",
-        *train_args(
-            maze_expert,
-            maze_random,
-            out,
-            "--steps=4",
-            "--batch_size=8",
-            "--save_freq=4",
-            "--policy.cycle_steps=2",
-            "--policy.rollout_episodes=2",
-            "--policy.idm_epochs=1",
-        ),
-    )
-    result = evaluate(out / CHECKPOINT, tmp_path / "eval", "--env.type=maze", "--env.size=3", episodes=2)
+def test_maze_policy_trains_and_lerobot_eval_runs(maze_run, tmp_path):
+    result = evaluate(maze_run / CHECKPOINT, tmp_path / "eval", "--env.type=maze", "--env.size=3", episodes=2)
     assert result["n_episodes"] == 2 and 0 <= result["pc_success"] <= 100
 
 

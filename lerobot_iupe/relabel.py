@@ -1,0 +1,454 @@
+"""Relabel a state-only dataset with the inverse dynamics model (IDM) of a trained IUPE checkpoint.
+
+Every frame t with a successor gets ``action = IDM(s_t, s_{t+1})``. The last frame of an episode has no
+successor; it repeats the label of the frame before it (an episode of a single frame gets action 0), which is
+what a policy that does not drop last frames should see. The dataset is rewritten beside itself and swapped in
+only when complete (``dataset_utils.staged_directory``): the original survives any failure or kill.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import queue
+import shutil
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import datasets
+import numpy as np
+import pandas as pd
+import torch
+from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.datasets.compute_stats import aggregate_stats, get_feature_stats
+from lerobot.datasets.feature_utils import get_hf_features_from_features
+from lerobot.datasets.io_utils import load_stats, write_info, write_stats, write_table_one_row_group_per_episode
+from lerobot.datasets.video_utils import decode_video_frames
+from lerobot.utils.constants import ACTION, OBS_IMAGE
+from lerobot.utils.import_utils import get_safe_default_video_backend
+from tqdm.auto import tqdm
+
+from lerobot_iupe.algorithm import choose_actions
+from lerobot_iupe.collect import DatasetTarget
+from lerobot_iupe.dataset_utils import (
+    CommandError,
+    read_iupe_meta,
+    recover_interrupted_swap,
+    resolve_root,
+    staged_directory,
+    write_iupe_meta,
+)
+from lerobot_iupe.modeling_iupe import IUPEPolicy, env_config_from_settings
+
+MODES = ("argmax", "sample")
+LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
+
+
+@dataclass
+class CheckpointRef:
+    # A trained IUPE checkpoint: .../checkpoints/<step>/pretrained_model (as for lerobot-eval --policy.path).
+    path: str | None = None
+
+
+@dataclass
+class RelabelConfig:
+    policy: CheckpointRef = field(default_factory=CheckpointRef)
+    dataset: DatasetTarget = field(default_factory=DatasetTarget)
+    # argmax: the IDM's most likely action; sample: one draw from its softmax per frame (seeded by --seed).
+    mode: str = "argmax"
+    seed: int = 0
+    # Frames per IDM batch; video is decoded in chunks of this size, so memory does not grow with the dataset.
+    batch_size: int = 512
+    # Video decoder: "pyav" or "torchcodec"; default: torchcodec where it loads, else pyav (LeRobot's rule).
+    video_backend: str | None = None
+    device: str = "cpu"
+    # Replace an `action` feature the dataset already has.
+    overwrite: bool = False
+    # Label and report statistics, write nothing.
+    dry_run: bool = False
+    # Push the relabelled dataset with an updated card to the hub as --dataset.repo_id.
+    push_to_hub: bool = False
+
+    def validate(self) -> None:
+        if not self.policy.path:
+            raise ValueError("--policy.path is required: a trained IUPE checkpoint (.../pretrained_model)")
+        if self.mode not in MODES:
+            raise ValueError(f"--mode={self.mode} is not known; use one of {list(MODES)}")
+        if self.batch_size < 1:
+            raise ValueError(f"--batch_size must be at least 1, got {self.batch_size}")
+        if self.video_backend not in (None, "pyav", "torchcodec"):
+            raise ValueError(f"--video_backend={self.video_backend} is not known; use pyav or torchcodec")
+        if self.dry_run and self.push_to_hub:
+            raise ValueError("--dry_run=true writes nothing, so --push_to_hub=true has nothing to push")
+
+
+@dataclass
+class RelabelReport:
+    root: Path
+    checkpoint: str
+    mode: str
+    frames: int
+    episodes: int
+    action_counts: list[int]
+    mean_confidence: float
+    # Share of frames (with a successor) whose new label equals the action the dataset already had.
+    agreement_with_existing: float | None
+    seconds: float
+    decode_seconds: float
+    written: bool = False
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.frames / max(self.seconds, 1e-9)
+
+    def summary(self) -> str:
+        total = max(sum(self.action_counts), 1)
+        shares = ", ".join(f"{a}: {c / total:.1%}" for a, c in enumerate(self.action_counts))
+        lines = [
+            f"{'wrote' if self.written else 'dry run, nothing written:'} {self.frames} frames of {self.episodes} "
+            f"episodes labelled ({self.mode}) in {self.seconds:.1f}s ({self.frames_per_second:.0f} frames/s)",
+            f"  actions {shares}; mean IDM confidence {self.mean_confidence:.3f}",
+        ]
+        if self.agreement_with_existing is not None:
+            lines.append(f"  agreement with the dataset's existing actions: {self.agreement_with_existing:.4f}")
+        return "\n".join(lines)
+
+
+# ---------------------------------------------------------------- checkpoint and checks
+
+
+def load_idm(path: str, device: str = "cpu") -> IUPEPolicy:
+    """The IUPE policy of a checkpoint directory (or hub model id), in eval mode."""
+    local = Path(path)
+    if local.exists():
+        config_file = local / "config.json"
+        if not config_file.exists():
+            raise FileNotFoundError(
+                f"--policy.path={path} holds no config.json; point it at a checkpoint's pretrained_model directory "
+                "(e.g. outputs/train/<run>/checkpoints/last/pretrained_model)"
+            )
+        policy_type = json.loads(config_file.read_text()).get("type")
+        if policy_type != "iupe":
+            raise ValueError(f"--policy.path={path} is a '{policy_type}' checkpoint; relabelling needs an IUPE one")
+    try:
+        policy = IUPEPolicy.from_pretrained(path)
+    except OSError as error:
+        raise FileNotFoundError(f"--policy.path={path}: cannot load a checkpoint from there ({error})") from error
+    return policy.to(device).eval()
+
+
+def checkpoint_fingerprint(path: str) -> str:
+    """First 16 hex digits of the SHA-256 of the checkpoint's weights ('' when they are not local)."""
+    weights = Path(path) / "model.safetensors"
+    if not weights.exists():
+        return ""
+    return hashlib.sha256(weights.read_bytes()).hexdigest()[:16]
+
+
+def check_compatible(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite: bool, dry_run: bool) -> str:
+    """Raise a ValueError naming both sides when the dataset cannot be labelled by this checkpoint.
+    Returns the observation key the IDM reads."""
+    config = policy.config
+    key = config.observation_key
+    where = f"dataset {meta.root}"
+    if key not in meta.features:
+        present = [k for k in meta.features if k.startswith("observation.")]
+        raise ValueError(f"the checkpoint reads '{key}' but the {where} has no such feature (it has {present})")
+    expected = tuple(config.input_features[key].shape)
+    stored = tuple(meta.features[key]["shape"])
+    if key == OBS_IMAGE:
+        stored = (stored[2], stored[0], stored[1])  # LeRobot stores (H, W, C); the policy reads (C, H, W)
+    if stored != expected:
+        raise ValueError(f"'{key}' has shape {stored} in the {where} but the checkpoint expects {expected}")
+    env_settings = config.env_settings
+    if env_settings:
+        env = env_config_from_settings(env_settings)
+        if meta.fps != env.fps:
+            raise ValueError(f"the {where} is at {meta.fps} fps but the checkpoint's {env.type} env runs at {env.fps}")
+        data_env = read_iupe_meta(meta.root).get("env")
+        if data_env and data_env.get("type") != env.type:
+            raise ValueError(f"the {where} was recorded in '{data_env['type']}' but the checkpoint is for '{env.type}'")
+        if data_env and env_config_from_settings(data_env).n_actions != config.n_actions:
+            raise ValueError(
+                f"the {where} has {env_config_from_settings(data_env).n_actions} actions but the checkpoint "
+                f"predicts {config.n_actions}"
+            )
+    if ACTION in meta.features and not (overwrite or dry_run):
+        raise FileExistsError(
+            f"the {where} already has an '{ACTION}' feature; pass --overwrite=true to replace it "
+            "(or --dry_run=true to compare the IDM's labels with it)"
+        )
+    return key
+
+
+# ---------------------------------------------------------------- streaming labelling
+
+
+@dataclass
+class Chunk:
+    """Frames ``start … start + len(frames) - 1`` (global dataset indices) of one episode; the last frame of the
+    chunk is only the successor of the one before it unless it ends the episode."""
+
+    start: int
+    frames: torch.Tensor
+    ends_episode: bool
+
+
+def _episode_bounds(meta: LeRobotDatasetMetadata) -> list[tuple[int, int]]:
+    episodes = meta.episodes
+    return [(int(a), int(b)) for a, b in zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True)]
+
+
+def _chunk_spans(first: int, last: int, batch_size: int) -> Iterator[tuple[int, int]]:
+    """Inclusive spans of ``batch_size + 1`` frames that overlap by one frame, covering ``first … last``."""
+    start = first
+    while True:
+        stop = min(start + batch_size, last)
+        yield start, stop
+        if stop == last:
+            return
+        start = stop
+
+
+def state_chunks(dataset: LeRobotDataset, key: str, batch_size: int) -> Iterator[Chunk]:
+    states = torch.from_numpy(np.asarray(dataset.hf_dataset.with_format("numpy")[key], dtype=np.float32))
+    for first, end in _episode_bounds(dataset.meta):
+        for start, stop in _chunk_spans(first, end - 1, batch_size):
+            yield Chunk(start, states[start : stop + 1], stop == end - 1)
+
+
+def video_chunks(meta: LeRobotDatasetMetadata, key: str, batch_size: int, backend: str) -> Iterator[Chunk]:
+    """Decode each episode's frames in chunks of ``batch_size + 1`` frames (uint8, C×H×W), one seek per chunk."""
+    tolerance = 1 / meta.fps - 1e-4
+    for episode, (first, end) in enumerate(_episode_bounds(meta)):
+        video = meta.root / meta.get_video_file_path(episode, key)
+        offset = float(meta.episodes[episode][f"videos/{key}/from_timestamp"])
+        for start, stop in _chunk_spans(first, end - 1, batch_size):
+            timestamps = [offset + (i - first) / meta.fps for i in range(start, stop + 1)]
+            frames = decode_video_frames(video, timestamps, tolerance, backend=backend, return_uint8=True)
+            yield Chunk(start, frames, stop == end - 1)
+
+
+def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
+    """Run ``chunks`` in a background thread so decoding the next chunk overlaps labelling this one
+    (by hand: torch's DataLoader would need a Dataset of chunks and worker processes for what one thread does)."""
+    buffer: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+
+    def produce() -> None:
+        try:
+            for chunk in chunks:
+                buffer.put(chunk)
+        except BaseException as error:  # handed to the consumer, which re-raises it
+            buffer.put(error)
+            return
+        buffer.put(done)
+
+    threading.Thread(target=produce, daemon=True).start()
+    while (item := buffer.get()) is not done:
+        if isinstance(item, BaseException):
+            raise item
+        yield item
+
+
+def timed(chunks: Iterator[Chunk], clock: list[float]) -> Iterator[Chunk]:
+    """Add the time spent producing each chunk to ``clock[0]``."""
+    while True:
+        start = time.perf_counter()
+        chunk = next(chunks, None)
+        clock[0] += time.perf_counter() - start
+        if chunk is None:
+            return
+        yield chunk
+
+
+@torch.no_grad()
+def label_chunks(
+    policy: IUPEPolicy, chunks: Iterator[Chunk], total_frames: int, mode: str, seed: int, device: str = "cpu"
+) -> tuple[np.ndarray, np.ndarray]:
+    """IDM labels and their softmax confidence for every frame; last frames follow ``LAST_FRAME_RULE``."""
+    labels = np.zeros(total_frames, dtype=np.int64)
+    confidence = np.zeros(total_frames, dtype=np.float32)
+    generator = torch.Generator().manual_seed(seed)
+    with tqdm(total=total_frames, desc="relabel", unit="frame", unit_scale=True) as progress:
+        for chunk in chunks:
+            frames = chunk.frames.to(device)
+            n = len(frames) - 1
+            if n > 0:
+                logits = policy.idm_logits(frames[:-1], frames[1:]).float().cpu()
+                chosen = choose_actions(logits, mode == "sample", generator)
+                labels[chunk.start : chunk.start + n] = chosen.numpy()
+                probs = torch.softmax(logits, dim=-1)
+                confidence[chunk.start : chunk.start + n] = probs.gather(1, chosen[:, None])[:, 0].numpy()
+            if chunk.ends_episode:
+                last = chunk.start + n
+                labels[last] = labels[last - 1] if n > 0 else 0
+                confidence[last] = confidence[last - 1] if n > 0 else 0.0
+                progress.update(n + 1)
+            else:
+                progress.update(n)
+    return labels, confidence
+
+
+def last_frame_mask(meta: LeRobotDatasetMetadata, total_frames: int) -> np.ndarray:
+    mask = np.zeros(total_frames, dtype=bool)
+    mask[[end - 1 for _, end in _episode_bounds(meta)]] = True
+    return mask
+
+
+# ---------------------------------------------------------------- writing
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    # Video files are never rewritten here, so a hard link is a free, safe copy; anything else is copied.
+    if f"{os.sep}videos{os.sep}" in src:
+        try:
+            os.link(src, dst)
+            return
+        except OSError:
+            pass
+    shutil.copy2(src, dst)
+
+
+def action_feature(checkpoint: str, mode: str) -> dict:
+    return {
+        "dtype": "int64",
+        "shape": (1,),
+        "names": ["action_id"],
+        "info": {
+            "labelled_by": checkpoint,
+            "checkpoint_sha256": checkpoint_fingerprint(checkpoint),
+            "mode": mode,
+            "last_frame": LAST_FRAME_RULE,
+        },
+    }
+
+
+def write_labels(staged: Path, labels: np.ndarray, feature: dict) -> None:
+    """Put ``labels`` as the ``action`` feature of the dataset copy at ``staged``: data files, per-episode stats,
+    stats.json and info.json. (LeRobot's ``modify_features`` refuses to replace an existing feature and leaves a
+    new feature without stats, so this pass is written here with LeRobot's own writers.)"""
+    meta = LeRobotDatasetMetadata("local/relabel", root=staged)
+    info = meta.info
+    features = {k: v for k, v in info.features.items() if k != ACTION}
+    ordered = {}
+    for name, spec in features.items():
+        ordered[name] = spec
+        if name.startswith("observation."):
+            ordered[ACTION] = feature
+    ordered.setdefault(ACTION, feature)
+    info.features = ordered
+    hf_features = get_hf_features_from_features(ordered)
+    for path in sorted((staged / "data").glob("*/*.parquet")):
+        df = pd.read_parquet(path)
+        df[ACTION] = labels[df["index"].to_numpy()]
+        table = datasets.Dataset.from_pandas(df[list(hf_features)], features=hf_features, preserve_index=False)
+        write_table_one_row_group_per_episode(table.with_format("arrow")[:], path)
+
+    episode_stats = []
+    for path in sorted((staged / "meta" / "episodes").glob("*/*.parquet")):
+        df = pd.read_parquet(path)
+        per_episode = [
+            get_feature_stats(labels[a:b, None].astype(np.float64), axis=0, keepdims=False)
+            for a, b in zip(df["dataset_from_index"], df["dataset_to_index"], strict=True)
+        ]
+        for stat in per_episode[0]:
+            df[f"stats/{ACTION}/{stat}"] = [s[stat].tolist() for s in per_episode]
+        df.to_parquet(path)
+        episode_stats += [{ACTION: s} for s in per_episode]
+    stats = load_stats(staged) or {}
+    stats[ACTION] = aggregate_stats(episode_stats)[ACTION]
+    write_stats(stats, staged)
+    write_info(info, staged)
+
+
+def pull_dataset(repo_id: str, root: Path, video_backend: str) -> None:
+    """Download a hub dataset into ``root`` (LeRobot's own download)."""
+    try:
+        LeRobotDataset(repo_id, root=root, video_backend=video_backend)
+    except Exception as error:  # the hub client raises many types; the message is what matters
+        shutil.rmtree(root, ignore_errors=True)
+        raise CommandError(
+            f"--dataset.root={root} does not exist and pulling --dataset.repo_id={repo_id} from the hub failed "
+            f"({type(error).__name__}: {error}); check the repo id, HF_ENDPOINT and your token"
+        ) from error
+
+
+def default_video_backend() -> str:
+    """LeRobot's rule (torchcodec where it loads, else pyav), minus its page-long traceback when it does not."""
+    logger = logging.getLogger("lerobot.utils.import_utils")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        return get_safe_default_video_backend()
+    finally:
+        logger.setLevel(level)
+
+
+def relabel(cfg: RelabelConfig) -> RelabelReport:
+    cfg.validate()
+    backend = cfg.video_backend or default_video_backend()
+    policy = load_idm(cfg.policy.path, cfg.device)
+    root = resolve_root(cfg.dataset.repo_id, cfg.dataset.root)
+    recover_interrupted_swap(root)
+    if not (root / "meta" / "info.json").exists():
+        if root.exists():
+            raise FileNotFoundError(f"--dataset.root={root} exists but is not a LeRobot dataset (no meta/info.json)")
+        pull_dataset(cfg.dataset.repo_id, root, backend)
+    dataset = LeRobotDataset(cfg.dataset.repo_id, root=root, video_backend=backend)
+    meta = dataset.meta
+    key = check_compatible(policy, meta, cfg.overwrite, cfg.dry_run)
+
+    start = time.perf_counter()
+    decode_clock = [0.0]
+    if meta.features[key]["dtype"] == "video":
+        chunks = prefetched(timed(video_chunks(meta, key, cfg.batch_size, backend), decode_clock))
+    else:
+        chunks = timed(state_chunks(dataset, key, cfg.batch_size), decode_clock)
+    total = meta.total_frames
+    labels, confidence = label_chunks(policy, chunks, total, cfg.mode, cfg.seed, cfg.device)
+    seconds = time.perf_counter() - start
+
+    agreement = None
+    if ACTION in meta.features:
+        existing = np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]).reshape(total)
+        inner = ~last_frame_mask(meta, total)
+        agreement = float((existing[inner] == labels[inner]).mean())
+    report = RelabelReport(
+        root=root,
+        checkpoint=str(cfg.policy.path),
+        mode=cfg.mode,
+        frames=total,
+        episodes=meta.total_episodes,
+        action_counts=np.bincount(labels, minlength=policy.config.n_actions).tolist(),
+        mean_confidence=float(confidence.mean()),
+        agreement_with_existing=agreement,
+        seconds=seconds,
+        decode_seconds=decode_clock[0],
+    )
+    if cfg.dry_run:
+        return report
+
+    with staged_directory(root, overwrite=True) as staged:
+        shutil.copytree(root, staged, copy_function=_link_or_copy)
+        write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode))
+        iupe_meta = read_iupe_meta(staged)
+        iupe_meta.update(
+            has_actions=True,
+            relabelled_by={
+                "checkpoint": str(cfg.policy.path),
+                "checkpoint_sha256": checkpoint_fingerprint(cfg.policy.path),
+                "mode": cfg.mode,
+                "seed": cfg.seed,
+                "mean_confidence": report.mean_confidence,
+                "agreement_with_previous_actions": agreement,
+            },
+        )
+        write_iupe_meta(staged, iupe_meta)
+    report.written = True
+    return report

@@ -1,0 +1,38 @@
+"""lerobot-iupe-relabel: give a state-only dataset (state or video) an `action` feature, labelled by the inverse
+dynamics model of a trained IUPE checkpoint, in place and safely.
+
+Examples:
+    lerobot-iupe-relabel --policy.path=outputs/iupe/checkpoints/last/pretrained_model \
+        --dataset.repo_id=local/cartpole-expert --dataset.root=data/cartpole-expert
+    lerobot-iupe-relabel --policy.path=... --dataset.repo_id=me/maze5-videos --dry_run=true
+    lerobot-iupe-relabel --policy.path=... --dataset.repo_id=me/maze5-videos --push_to_hub=true
+A dataset missing locally is pulled from the hub first. The last frame of each episode (it has no successor)
+repeats the label of the frame before it. The dataset is rewritten beside itself and swapped in when complete;
+an existing `action` feature is only replaced with --overwrite=true.
+"""
+
+from lerobot.configs import parser
+
+from lerobot_iupe.dataset_utils import run_cli
+from lerobot_iupe.relabel import RelabelConfig, relabel
+
+
+@parser.wrap()
+def relabel_main(cfg: RelabelConfig) -> None:
+    report = relabel(cfg)
+    print(report.summary())
+    if report.written:
+        print(f"relabelled dataset at {report.root}")
+    if cfg.push_to_hub:
+        from lerobot_iupe.hub import push_dataset
+
+        url = push_dataset(report.root, cfg.dataset.repo_id, private=cfg.dataset.private)
+        print(f"pushed to {url}")
+
+
+def main() -> None:
+    run_cli(relabel_main)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,223 @@
+"""lerobot-iupe-relabel on real datasets with real checkpoints: labels, metadata, safety, hub."""
+
+import errno
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+from conftest import BIN, CHECKPOINT, evaluate, run_cli, train_args
+from hub_server import LocalHub
+from lerobot.datasets import LeRobotDataset
+from lerobot.datasets.dataset_tools import remove_feature
+from test_hub import hub_env
+
+from lerobot_iupe import relabel as relabel_module
+from lerobot_iupe.collect import DatasetTarget
+from lerobot_iupe.dataset_utils import read_iupe_meta, write_iupe_meta
+from lerobot_iupe.relabel import CheckpointRef, RelabelConfig, relabel
+
+
+def tree_digest(root) -> dict:
+    files = (p for p in root.rglob("*") if p.is_file())
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
+
+
+def hidden_siblings(root) -> list:
+    return sorted(p.name for p in root.parent.iterdir() if p.name.startswith(f".{root.name}."))
+
+
+def labelled_and_stripped(data_dir, name: str, *collect_args: str):
+    """An expert dataset collected with its true actions, and a copy with the actions removed by LeRobot."""
+    labelled = data_dir / f"{name}-true"
+    if not labelled.exists():
+        run_cli(
+            "lerobot-iupe-collect",
+            *collect_args,
+            "--agent=expert",
+            "--keep_actions=true",
+            f"--dataset.repo_id=local/{name}-true",
+            f"--dataset.root={labelled}",
+        )
+    stripped = data_dir / f"{name}-{time.monotonic_ns()}"
+    source = LeRobotDataset(f"local/{name}-true", root=labelled, video_backend="pyav")
+    remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
+    write_iupe_meta(stripped, {**read_iupe_meta(labelled), "has_actions": False})  # LeRobot copies only its files
+    return labelled, stripped
+
+
+def relabel_args(checkpoint, root, *extra: str) -> list[str]:
+    return [f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", *extra]
+
+
+def true_actions(root) -> tuple[np.ndarray, np.ndarray]:
+    table = LeRobotDataset("local/x", root=root, video_backend="pyav").hf_dataset.with_format("numpy")
+    episodes = np.asarray(table["episode_index"])
+    has_next = np.append(episodes[:-1] == episodes[1:], False)
+    return np.asarray(table["action"]).reshape(-1), has_next
+
+
+def test_relabelled_state_dataset_matches_the_true_actions(cartpole_run, data_dir):
+    checkpoint = cartpole_run / CHECKPOINT
+    labelled, stripped = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
+    result = run_cli("lerobot-iupe-relabel", *relabel_args(checkpoint, stripped))
+    assert "frames/s" in result.stdout
+    dataset = LeRobotDataset(f"local/{stripped.name}", root=stripped)
+    feature = dataset.meta.features["action"]
+    assert feature["dtype"] == "int64" and tuple(feature["shape"]) == (1,)
+    assert feature["info"]["labelled_by"] == str(checkpoint) and len(feature["info"]["checkpoint_sha256"]) == 16
+    info = json.loads((stripped / "meta" / "info.json").read_text())
+    assert info["features"]["action"]["info"]["mode"] == "argmax"
+    assert set(dataset.meta.stats["action"]) >= {"mean", "std", "min", "max"}
+    assert dataset[0]["action"].shape == ()
+    new, has_next = true_actions(stripped)
+    old, _ = true_actions(labelled)
+    assert (new[has_next] == old[has_next]).mean() >= 0.95  # IDM of a normal run labels like the expert
+    last = np.flatnonzero(~has_next)
+    assert np.array_equal(new[last], new[last - 1])  # the documented last-frame rule
+    meta = json.loads((stripped / "meta" / "iupe.json").read_text())
+    assert meta["relabelled_by"]["checkpoint"] == str(checkpoint) and meta["has_actions"]
+    assert hidden_siblings(stripped) == []
+
+
+def test_bc_on_a_relabelled_cartpole_dataset_reaches_475(cartpole_run, cartpole_random, data_dir, tmp_path):
+    _, stripped = labelled_and_stripped(data_dir, "cartpole-bc", "--env.type=cartpole", "--episodes=10")
+    run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, stripped))
+    out = tmp_path / "bc"
+    run_cli(
+        "lerobot-train",
+        *train_args(stripped, cartpole_random, out, "--steps=300", "--batch_size=128", "--policy.supervised=true"),
+    )
+    result = evaluate(out / CHECKPOINT, tmp_path / "eval", "--env.type=cartpole", episodes=20)
+    assert result["avg_sum_reward"] >= 475
+
+
+def test_existing_actions_are_refused_without_overwrite_and_compared_in_dry_run(cartpole_run, data_dir):
+    labelled, _ = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
+    before = tree_digest(labelled)
+    refused = run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, labelled), check=False)
+    assert refused.returncode == 2 and "--overwrite=true" in refused.stderr
+    dry = run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, labelled, "--dry_run=true"))
+    assert "nothing written" in dry.stdout and "agreement with the dataset's existing actions" in dry.stdout
+    assert tree_digest(labelled) == before
+
+
+def test_overwrite_replaces_existing_actions(cartpole_run, data_dir, tmp_path):
+    labelled, _ = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
+    copy = tmp_path / "copy"
+    LeRobotDataset("local/x", root=labelled)  # the dataset loads before the copy is relabelled
+    subprocess.run(["cp", "-r", str(labelled), str(copy)], check=True)
+    result = run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, copy, "--overwrite=true"))
+    assert "agreement" in result.stdout
+    assert LeRobotDataset("local/copy", root=copy).meta.features["action"]["info"]["mode"] == "argmax"
+
+
+@pytest.mark.parametrize(
+    ("case", "message"),
+    [
+        ("image_dataset", "the checkpoint reads 'observation.state'"),
+        ("other_state_size", "has shape (6,) in the dataset"),
+        ("not_a_checkpoint", "holds no config.json"),
+        ("bad_mode", "--mode=greedy"),
+    ],
+)
+def test_mismatches_are_clear_errors_and_write_nothing(case, message, cartpole_run, maze_expert, data_dir, tmp_path):
+    checkpoint, dataset, extra = cartpole_run / CHECKPOINT, data_dir / "cartpole-expert", []
+    if case == "image_dataset":
+        dataset = maze_expert
+    elif case == "other_state_size":
+        dataset = tmp_path / "acrobot"
+        run_cli(
+            "lerobot-iupe-collect",
+            "--env.type=acrobot",
+            "--agent=expert",
+            "--episodes=1",
+            "--dataset.repo_id=local/acrobot",
+            f"--dataset.root={dataset}",
+        )
+    elif case == "not_a_checkpoint":
+        checkpoint = tmp_path
+    elif case == "bad_mode":
+        extra = ["--mode=greedy"]
+    before = tree_digest(dataset)
+    result = run_cli("lerobot-iupe-relabel", *relabel_args(checkpoint, dataset, *extra), check=False)
+    assert result.returncode == 2 and message in result.stderr, result.stderr[-2000:]
+    assert tree_digest(dataset) == before and hidden_siblings(dataset) == []
+
+
+def test_video_dataset_is_relabelled_in_streaming_batches(maze_run, data_dir):
+    _, stripped = labelled_and_stripped(data_dir, "maze3-relabel", "--env.type=maze", "--env.size=3", "--episodes=3")
+    videos_before = {k: v for k, v in tree_digest(stripped).items() if k.startswith("videos/")}
+    args = relabel_args(maze_run / CHECKPOINT, stripped, "--video_backend=pyav", "--batch_size=4")
+    dry_a = run_cli("lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true").stdout
+    dry_b = run_cli("lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true").stdout
+    shares = [[line for line in out.splitlines() if line.startswith("  actions")] for out in (dry_a, dry_b)]
+    assert shares[0] and shares[0] == shares[1]  # same seed, same label statistics
+    run_cli("lerobot-iupe-relabel", *args)
+    dataset = LeRobotDataset(f"local/{stripped.name}", root=stripped, video_backend="pyav")
+    assert dataset.meta.features["action"]["dtype"] == "int64"
+    frame = dataset[1]
+    assert frame["observation.image"].shape == (3, 64, 64) and 0 <= int(frame["action"]) < 4
+    assert {k: v for k, v in tree_digest(stripped).items() if k.startswith("videos/")} == videos_before
+
+
+def test_a_failure_while_writing_keeps_the_original(cartpole_run, data_dir, monkeypatch):
+    _, stripped = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
+    before = tree_digest(stripped)
+
+    def disk_full(staged, labels, feature):
+        (staged / "data" / "filler.bin").write_bytes(b"0" * 1024)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(relabel_module, "write_labels", disk_full)
+    cfg = RelabelConfig(
+        policy=CheckpointRef(str(cartpole_run / CHECKPOINT)),
+        dataset=DatasetTarget(repo_id=f"local/{stripped.name}", root=str(stripped)),
+    )
+    with pytest.raises(OSError, match="No space left"):
+        relabel(cfg)
+    assert tree_digest(stripped) == before and hidden_siblings(stripped) == []
+
+
+def test_kill_9_mid_write_loses_nothing(maze_run, maze_random, data_dir, tmp_path):
+    root = tmp_path / "maze-random"
+    subprocess.run(["cp", "-r", str(maze_random), str(root)], check=True)
+    before = tree_digest(root)
+    args = relabel_args(maze_run / CHECKPOINT, root, "--overwrite=true", "--video_backend=pyav")
+    process = subprocess.Popen([str(BIN / "lerobot-iupe-relabel"), *args], stdout=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not hidden_siblings(root) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    staged_seen = hidden_siblings(root)
+    os.kill(process.pid, signal.SIGKILL)
+    assert process.wait() == -signal.SIGKILL
+    assert staged_seen, "the relabel run ended before its staged copy could be observed"
+    assert tree_digest(root) == before
+    LeRobotDataset("local/maze-random", root=root, video_backend="pyav")[0]
+    run_cli("lerobot-iupe-relabel", *args)  # the next run cleans up the dead run's staged copy
+    assert hidden_siblings(root) == []
+    assert "relabelled_by" in json.loads((root / "meta" / "iupe.json").read_text())
+
+
+def test_hub_dataset_is_pulled_relabelled_and_pushed_with_its_card(cartpole_run, cartpole_expert, tmp_path):
+    with LocalHub() as hub:
+        env = hub_env(hub.url, tmp_path)
+        run_cli("lerobot-iupe-push", f"--dataset.root={cartpole_expert}", "--dataset.repo_id=me/demos", env=env)
+        run_cli(
+            "lerobot-iupe-relabel",
+            f"--policy.path={cartpole_run / CHECKPOINT}",
+            "--dataset.repo_id=me/demos",
+            "--push_to_hub=true",
+            env=env,
+        )
+        assert (tmp_path / "lerobot" / "me" / "demos" / "meta" / "iupe.json").exists()  # the pulled local copy
+        repo = hub.repos["me/demos"]
+        files = repo.snapshots[repo.tags["v3.0"]]
+        card = files["README.md"].decode()
+        assert "labelled by an inverse" in card and "lerobot-iupe-relabel" in card
+        info = json.loads(files["meta/info.json"])
+        assert info["features"]["action"]["info"]["labelled_by"] == str(cartpole_run / CHECKPOINT)
