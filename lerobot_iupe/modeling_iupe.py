@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import time
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,7 @@ from lerobot_iupe.algorithm import (
 )
 from lerobot_iupe.configuration_iupe import IUPEConfig
 from lerobot_iupe.dataset_utils import read_iupe_meta
+from lerobot_iupe.frames import column_array, video_chunks
 
 log = logging.getLogger("lerobot_iupe")
 
@@ -161,16 +163,15 @@ def env_config_from_settings(settings: dict) -> EnvConfig:
     return EnvConfig.get_choice_class(settings["type"])(**kwargs)
 
 
-def load_transitions(dataset: LeRobotDataset, key: str) -> Transitions:
+def load_transitions(dataset: LeRobotDataset, key: str, video_backend: str = "pyav") -> Transitions:
     """All (s_t, a_t, s_{t+1}) of a dataset with actions; images kept as uint8 (N, C, H, W)."""
-    table = dataset.hf_dataset.with_format("numpy")
-    episodes = np.asarray(table["episode_index"])
-    actions = np.asarray(table[ACTION]).reshape(-1).astype(np.int64)
-    if key == OBS_STATE:
-        states = np.asarray(table[OBS_STATE], dtype=np.float32)
+    episodes = column_array(dataset.hf_dataset, "episode_index")
+    actions = column_array(dataset.hf_dataset, ACTION).reshape(-1).astype(np.int64)
+    if dataset.meta.features[key]["dtype"] == "video":
+        chunks = video_chunks(dataset.meta, key, 1024, video_backend)
+        states = np.concatenate([c.frames[: len(c.frames) - 1 + c.ends_episode].numpy() for c in chunks])
     else:
-        loader = torch.utils.data.DataLoader(dataset, batch_size=256, num_workers=0)
-        states = np.concatenate([(b[key] * 255).round().to(torch.uint8).numpy() for b in loader])
+        states = column_array(dataset.hf_dataset, key).astype(np.float32)
     has_next = np.flatnonzero(episodes[:-1] == episodes[1:])
     return Transitions(states[has_next], actions[has_next], states[has_next + 1])
 
@@ -369,11 +370,14 @@ class IUPEPolicy(PreTrainedPolicy):
                 list(self.idm_encoder.parameters()) + list(self.idm_head.parameters()), lr=cfg.idm_lr
             ),
             "best_success": -1.0,
+            "seconds": {"rollouts": 0.0, "idm": 0.0},  # cumulative, for the benchmark's time breakdown
         }
         if self._training_state["torch_rng"].device != self._device():
             self._training_state["torch_rng"] = None  # multinomial on another device: use the global generator
         log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self._env_cfg.type}")
+        start = time.perf_counter()
         self._train_idm(pre)
+        self._training_state["seconds"]["idm"] += time.perf_counter() - start
 
     def _train_idm(self, data: Transitions) -> None:
         """Train the IDM on I^s (90%) and measure its accuracy on the held-out 10%."""
@@ -450,7 +454,9 @@ class IUPEPolicy(PreTrainedPolicy):
         cfg, state = self.config, self._training_state
         state["cycle"] += 1
         seed = 1_000_000 * (1 + state["rank"]) + cfg.seed * 100_003 + state["cycle"] * cfg.rollout_episodes
+        start = time.perf_counter()
         episodes, successes, returns = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
+        state["seconds"]["rollouts"] += time.perf_counter() - start
         success_rate = float(successes.mean())
         if success_rate >= state["best_success"]:
             state["best_success"] = success_rate
@@ -463,11 +469,14 @@ class IUPEPolicy(PreTrainedPolicy):
             sampled = build_sampled_set(pre, successful, p_success, state["size"], state["rng"])
         else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
             sampled = Transitions.concat([pre, *episodes])
+        start = time.perf_counter()
         self._train_idm(sampled)
+        state["seconds"]["idm"] += time.perf_counter() - start
         self.cycle_stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
         log.info(
             f"IUPE cycle {state['cycle']}: success r={success_rate:.2f} return={returns.mean():.1f} "
             f"IDM acc={self.cycle_stats['idm_accuracy']:.3f} "
             f"non-MAP labels={self.cycle_stats.get('label_non_map', 0):.3f} "
-            f"|I^s|={len(sampled)} best r={state['best_success']:.2f}"
+            f"|I^s|={len(sampled)} best r={state['best_success']:.2f} "
+            f"time so far: rollouts {state['seconds']['rollouts']:.2f}s IDM {state['seconds']['idm']:.2f}s"
         )

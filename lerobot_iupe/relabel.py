@@ -12,9 +12,7 @@ import hashlib
 import json
 import logging
 import os
-import queue
 import shutil
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -28,7 +26,6 @@ from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.compute_stats import aggregate_stats, get_feature_stats
 from lerobot.datasets.feature_utils import get_hf_features_from_features
 from lerobot.datasets.io_utils import load_stats, write_info, write_stats, write_table_one_row_group_per_episode
-from lerobot.datasets.video_utils import decode_video_frames
 from lerobot.utils.constants import ACTION, OBS_IMAGE
 from lerobot.utils.import_utils import get_safe_default_video_backend
 from tqdm.auto import tqdm
@@ -43,6 +40,7 @@ from lerobot_iupe.dataset_utils import (
     staged_directory,
     write_iupe_meta,
 )
+from lerobot_iupe.frames import Chunk, column_array, episode_bounds, prefetched, state_chunks, timed, video_chunks
 from lerobot_iupe.modeling_iupe import IUPEPolicy, env_config_from_settings
 
 MODES = ("argmax", "sample")
@@ -189,84 +187,6 @@ def check_compatible(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite
 # ---------------------------------------------------------------- streaming labelling
 
 
-@dataclass
-class Chunk:
-    """Frames ``start … start + len(frames) - 1`` (global dataset indices) of one episode; the last frame of the
-    chunk is only the successor of the one before it unless it ends the episode."""
-
-    start: int
-    frames: torch.Tensor
-    ends_episode: bool
-
-
-def _episode_bounds(meta: LeRobotDatasetMetadata) -> list[tuple[int, int]]:
-    episodes = meta.episodes
-    return [(int(a), int(b)) for a, b in zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True)]
-
-
-def _chunk_spans(first: int, last: int, batch_size: int) -> Iterator[tuple[int, int]]:
-    """Inclusive spans of ``batch_size + 1`` frames that overlap by one frame, covering ``first … last``."""
-    start = first
-    while True:
-        stop = min(start + batch_size, last)
-        yield start, stop
-        if stop == last:
-            return
-        start = stop
-
-
-def state_chunks(dataset: LeRobotDataset, key: str, batch_size: int) -> Iterator[Chunk]:
-    states = torch.from_numpy(np.asarray(dataset.hf_dataset.with_format("numpy")[key], dtype=np.float32))
-    for first, end in _episode_bounds(dataset.meta):
-        for start, stop in _chunk_spans(first, end - 1, batch_size):
-            yield Chunk(start, states[start : stop + 1], stop == end - 1)
-
-
-def video_chunks(meta: LeRobotDatasetMetadata, key: str, batch_size: int, backend: str) -> Iterator[Chunk]:
-    """Decode each episode's frames in chunks of ``batch_size + 1`` frames (uint8, C×H×W), one seek per chunk."""
-    tolerance = 1 / meta.fps - 1e-4
-    for episode, (first, end) in enumerate(_episode_bounds(meta)):
-        video = meta.root / meta.get_video_file_path(episode, key)
-        offset = float(meta.episodes[episode][f"videos/{key}/from_timestamp"])
-        for start, stop in _chunk_spans(first, end - 1, batch_size):
-            timestamps = [offset + (i - first) / meta.fps for i in range(start, stop + 1)]
-            frames = decode_video_frames(video, timestamps, tolerance, backend=backend, return_uint8=True)
-            yield Chunk(start, frames, stop == end - 1)
-
-
-def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
-    """Run ``chunks`` in a background thread so decoding the next chunk overlaps labelling this one
-    (by hand: torch's DataLoader would need a Dataset of chunks and worker processes for what one thread does)."""
-    buffer: queue.Queue = queue.Queue(maxsize=depth)
-    done = object()
-
-    def produce() -> None:
-        try:
-            for chunk in chunks:
-                buffer.put(chunk)
-        except BaseException as error:  # handed to the consumer, which re-raises it
-            buffer.put(error)
-            return
-        buffer.put(done)
-
-    threading.Thread(target=produce, daemon=True).start()
-    while (item := buffer.get()) is not done:
-        if isinstance(item, BaseException):
-            raise item
-        yield item
-
-
-def timed(chunks: Iterator[Chunk], clock: list[float]) -> Iterator[Chunk]:
-    """Add the time spent producing each chunk to ``clock[0]``."""
-    while True:
-        start = time.perf_counter()
-        chunk = next(chunks, None)
-        clock[0] += time.perf_counter() - start
-        if chunk is None:
-            return
-        yield chunk
-
-
 @torch.no_grad()
 def label_chunks(
     policy: IUPEPolicy, chunks: Iterator[Chunk], total_frames: int, mode: str, seed: int, device: str = "cpu"
@@ -297,7 +217,7 @@ def label_chunks(
 
 def last_frame_mask(meta: LeRobotDatasetMetadata, total_frames: int) -> np.ndarray:
     mask = np.zeros(total_frames, dtype=bool)
-    mask[[end - 1 for _, end in _episode_bounds(meta)]] = True
+    mask[[end - 1 for _, end in episode_bounds(meta)]] = True
     return mask
 
 
@@ -416,7 +336,7 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
 
     agreement = None
     if ACTION in meta.features:
-        existing = np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]).reshape(total)
+        existing = column_array(dataset.hf_dataset, ACTION).reshape(total)
         inner = ~last_frame_mask(meta, total)
         agreement = float((existing[inner] == labels[inner]).mean())
     report = RelabelReport(

@@ -1,0 +1,437 @@
+"""The paper's Tables 1 and 2 on this package: Expert, Random, BC, BCO(α) and IUPE (and the ablation variants),
+each trained through ``lerobot-train`` and evaluated with LeRobot's own evaluation code (``eval_policy_all``,
+what ``lerobot-eval`` runs, without its video rendering).
+
+Every finished run is appended to ``<work>/runs.jsonl`` at once, so an interrupted benchmark resumes where it
+stopped; the report (results.md/json, plots) is rebuilt from all records on every call.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.configs import PreTrainedConfig
+from lerobot.envs import close_envs, make_env, make_env_pre_post_processors
+from lerobot.envs.configs import EnvConfig
+from lerobot.policies import make_policy, make_pre_post_processors
+from lerobot.scripts.lerobot_eval import eval_policy_all
+from lerobot.utils.random_utils import set_seed
+
+from lerobot_iupe.algorithm import performance
+from lerobot_iupe.dataset_utils import read_iupe_meta
+from lerobot_iupe.experts import reference_returns
+
+BIN = Path(sys.executable).parent
+EVAL_SEED = 500_000  # evaluation seeds/layouts 500000…: never used by data (0…, 1000…) or rollouts (≥ 1e6)
+CHECKPOINT = "checkpoints/last/pretrained_model"
+
+# The paper's Table 1 (P, AER) and Table 2 (Maze 10×10, P, AER).
+PAPER_TABLE1 = {
+    "expert": {"cartpole": (1.0, 442.628), "acrobot": (1.0, -110.109), "mountaincar": (1.0, -147.265),
+               "maze3": (1.0, 0.963), "maze5": (1.0, 0.970), "maze10": (1.0, 0.981)},
+    "random": {"cartpole": (0.0, 18.7), "acrobot": (0.0, -482.6), "mountaincar": (0.0, -200.0),
+               "maze3": (0.0, 0.557), "maze5": (0.0, 0.166), "maze10": (0.0, -0.415)},
+    "bc": {"cartpole": (1.135, 500.0), "acrobot": (1.071, -83.59), "mountaincar": (1.56, -117.72),
+           "maze3": (-1.207, 0.18), "maze5": (-0.921, -0.507), "maze10": (-0.47, -1.0)},
+    "bco": {"cartpole": (1.135, 500.0), "acrobot": (0.98, -117.6), "mountaincar": (0.948, -150.0),
+            "maze3": (0.883, 0.927), "maze5": (-0.112, 0.104), "maze10": (-0.416, -0.941)},
+    "iupe": {"cartpole": (1.135, 500.0), "acrobot": (1.086, -78.1), "mountaincar": (1.314, -130.7),
+             "maze3": (1.361, 0.927), "maze5": (1.0, 0.971), "maze10": (1.0, 0.981)},
+}  # fmt: skip
+PAPER_TABLE2 = {
+    "bco": (-0.416, -0.941), "A": (-0.415, -0.94), "S": (0.534, 0.348), "E": (0.734, 0.605),
+    "SA": (0.367, 0.088), "EA": (-0.407, -0.921), "SE": (0.943, 0.901), "iupe": (1.0, 0.981),
+}  # fmt: skip
+ABLATION = ["bco", "A", "S", "E", "SA", "EA", "SE", "iupe"]  # letters: Sampling, Exploration, Attention on
+
+
+@dataclass
+class EnvPreset:
+    env: dict  # EnvConfig fields, "type" included
+    expert_episodes: int
+    random_episodes: int
+    train: list[str]  # lerobot-train flags of the trained methods
+    random_flags: list[str] = field(default_factory=list)
+
+    @property
+    def is_maze(self) -> bool:
+        return self.env["type"] == "maze"
+
+    def env_config(self, layouts: str | None = None) -> EnvConfig:
+        fields = {k: v for k, v in self.env.items() if k != "type"}
+        if layouts:
+            fields["layouts"] = layouts
+        return EnvConfig.get_choice_class(self.env["type"])(**fields)
+
+    def env_flags(self) -> list[str]:
+        return [f"--env.{k}={v}" for k, v in self.env.items()]
+
+
+VECTOR_TRAIN = ["--steps=200", "--batch_size=128", "--policy.cycle_steps=50"]
+MAZE_RANDOM = ["--random_start=true"]
+PRESETS = {
+    "cartpole": EnvPreset({"type": "cartpole"}, 10, 400, VECTOR_TRAIN),
+    "acrobot": EnvPreset({"type": "acrobot"}, 10, 40, VECTOR_TRAIN),
+    "mountaincar": EnvPreset({"type": "mountaincar"}, 10, 100, ["--steps=600", "--batch_size=128",
+                             "--policy.cycle_steps=100"]),
+    "maze3": EnvPreset({"type": "maze", "size": 3}, 100, 400, ["--steps=300", "--batch_size=64",
+                       "--policy.cycle_steps=100"], MAZE_RANDOM + ["--env.max_steps=15"]),
+    "maze5": EnvPreset({"type": "maze", "size": 5}, 100, 400, ["--steps=600", "--batch_size=64",
+                       "--policy.cycle_steps=150"], MAZE_RANDOM + ["--env.max_steps=25"]),
+    "maze10": EnvPreset({"type": "maze", "size": 10}, 100, 400, ["--steps=1200", "--batch_size=64",
+                        "--policy.cycle_steps=200"], MAZE_RANDOM + ["--env.max_steps=60"]),
+}  # fmt: skip
+# Low data: one expert episode and about 1,000 pre-demonstration transitions.
+LOW_DATA = {
+    "cartpole": EnvPreset({"type": "cartpole"}, 1, 45, ["--steps=200", "--batch_size=64", "--policy.cycle_steps=25"]),
+    "acrobot": EnvPreset({"type": "acrobot"}, 1, 2, ["--steps=200", "--batch_size=64", "--policy.cycle_steps=25"]),
+    "mountaincar": EnvPreset({"type": "mountaincar"}, 1, 5, ["--steps=400", "--batch_size=64",
+                             "--policy.cycle_steps=50"]),
+}  # fmt: skip
+QUICK_TRAIN = ["--steps=20", "--batch_size=32", "--policy.cycle_steps=10", "--policy.rollout_episodes=4"]
+
+
+def method_flags(method: str) -> list[str]:
+    """lerobot-train flags of a method; ablation variants name the mechanisms that are on."""
+    if method == "bc":
+        return ["--policy.supervised=true"]
+    if method == "iupe":
+        return []
+    on = "" if method == "bco" else method
+    return [
+        f"--policy.sampling={'S' in on}".lower(),
+        f"--policy.exploration={'E' in on}".lower(),
+        f"--policy.attention={'A' in on}".lower(),
+    ]
+
+
+def run_cli(*args: str, log: Path | None = None) -> str:
+    """Run a console script; its output goes to ``log`` (and is returned)."""
+    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True)
+    output = result.stdout + result.stderr
+    if log is not None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text(output)
+    if result.returncode != 0:
+        raise RuntimeError(f"{args[0]} failed ({result.returncode}); see {log}\n{output[-2000:]}")
+    return output
+
+
+def collect_datasets(name: str, preset: EnvPreset, data_dir: Path) -> dict[str, Path]:
+    """Expert (state only), the same expert episodes with actions (for BC), random pre-demonstrations."""
+    paths = {}
+    for kind, agent, episodes, extra in [
+        ("expert", "expert", preset.expert_episodes, ["--seed=0"]),
+        ("expert-actions", "expert", preset.expert_episodes, ["--seed=0", "--keep_actions=true"]),
+        ("random", "random", preset.random_episodes, ["--seed=1000", *preset.random_flags]),
+    ]:
+        root = data_dir / f"{name}-{kind}"
+        if not (root / "meta" / "iupe.json").exists():
+            run_cli(
+                "lerobot-iupe-collect", *preset.env_flags(), f"--agent={agent}", f"--episodes={episodes}", *extra,
+                f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", "--overwrite=true",
+            )  # fmt: skip
+        paths[kind] = root
+    return paths
+
+
+@torch.no_grad()
+def evaluate_checkpoint(checkpoint: Path, env_cfg: EnvConfig, episodes: int, seed: int = EVAL_SEED) -> dict:
+    """What lerobot-eval does (make_env, make_policy, LeRobot's processors, eval_policy_all), minus videos."""
+    set_seed(seed)
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path = checkpoint
+    policy_cfg.device = "cpu"
+    envs = make_env(env_cfg, n_envs=min(episodes, 50), use_async_envs=False)
+    policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg).eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy_cfg=policy_cfg,
+        pretrained_path=str(checkpoint),
+        preprocessor_overrides={"device_processor": {"device": "cpu"}},
+    )
+    env_pre, env_post = make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
+    info = eval_policy_all(
+        envs=envs, policy=policy, env_preprocessor=env_pre, env_postprocessor=env_post, preprocessor=preprocessor,
+        postprocessor=postprocessor, n_episodes=episodes, start_seed=seed,
+    )  # fmt: skip
+    close_envs(envs)
+    return info["overall"]
+
+
+def evaluate_agent(agent: str, env_cfg: EnvConfig, episodes: int) -> dict:
+    returns = reference_returns(env_cfg, agent, episodes, seed=EVAL_SEED)
+    return {"avg_sum_reward": float(returns.mean()), "pc_success": None}
+
+
+CYCLE_LINE = re.compile(
+    r"IUPE cycle (\d+): success r=([\d.]+) return=(-?[\d.]+).*rollouts ([\d.]+)s IDM ([\d.]+)s"
+)
+DATA_S = re.compile(r"data_s:([\d.]+)")
+
+
+def parse_training_log(output: str, steps: int) -> tuple[list[dict], dict]:
+    cycles = [
+        {"cycle": int(m[1]), "success_rate": float(m[2]), "return": float(m[3])} for m in CYCLE_LINE.finditer(output)
+    ]
+    last = list(CYCLE_LINE.finditer(output))
+    data_avg = [float(x) for x in DATA_S.findall(output)]
+    timing = {
+        "rollouts_s": float(last[-1][4]) if last else 0.0,
+        "idm_s": float(last[-1][5]) if last else 0.0,
+        "data_loading_s": float(np.mean(data_avg)) * steps if data_avg else 0.0,  # LeRobot's per-step average
+    }
+    return cycles, timing
+
+
+@dataclass
+class Benchmark:
+    work: Path
+    eval_episodes: int = 100
+    quick: bool = False
+
+    @property
+    def records_file(self) -> Path:
+        return self.work / "runs.jsonl"
+
+    def records(self) -> list[dict]:
+        if not self.records_file.exists():
+            return []
+        return [json.loads(line) for line in self.records_file.read_text().splitlines() if line.strip()]
+
+    def _save(self, record: dict) -> None:
+        self.work.mkdir(parents=True, exist_ok=True)
+        with self.records_file.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    def _done(self, table: str, env: str, method: str, seed: int | None) -> bool:
+        return any(
+            (r["table"], r["env"], r["method"], r["seed"]) == (table, env, method, seed) for r in self.records()
+        )
+
+    def references(self, name: str, preset: EnvPreset, data: dict[str, Path]) -> tuple[float, float]:
+        """R_expert: mean return of the expert demonstrations; R_random: uniform-random policy, 100 episodes."""
+        expert = read_iupe_meta(data["expert"])["mean_return"]
+        random = float(reference_returns(preset.env_config(), "random", 100).mean())
+        return expert, random
+
+    def layouts(self, preset: EnvPreset) -> list[str | None]:
+        return ["demo", "heldout"] if preset.is_maze else [None]
+
+    def run_env(self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int]) -> None:
+        data = collect_datasets(f"{table}-{name}", preset, self.work / "data")
+        r_expert, r_random = self.references(name, preset, data)
+        episodes = self.eval_episodes
+        for method in methods:
+            for seed in [None] if method in ("expert", "random") else seeds:
+                if self._done(table, name, method, seed):
+                    continue
+                print(f"[benchmark] {table} {name} {method} seed={seed}", flush=True)
+                train_seconds, cycles, timing = 0.0, [], {}
+                if method in ("expert", "random"):
+                    layouts = self.layouts(preset)
+                    evals = {lay: evaluate_agent(method, preset.env_config(lay), episodes) for lay in layouts}
+                else:
+                    out = self.work / "runs" / table / name / f"{method}-s{seed}"
+                    train = QUICK_TRAIN if self.quick else preset.train
+                    expert = data["expert-actions" if method == "bc" else "expert"]
+                    start = time.perf_counter()
+                    output = run_cli(
+                        "lerobot-train", "--policy.type=iupe", f"--dataset.repo_id=local/{expert.name}",
+                        f"--dataset.root={expert}", "--dataset.video_backend=pyav",
+                        f"--policy.pre_demos_repo_id=local/{data['random'].name}",
+                        f"--policy.pre_demos_root={data['random']}", f"--output_dir={out}", "--policy.device=cpu",
+                        "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
+                        f"--seed={seed}", f"--policy.seed={seed}", *train, *method_flags(method),
+                        log=out.with_suffix(".log"),
+                    )  # fmt: skip
+                    train_seconds = time.perf_counter() - start
+                    steps = int(next(f for f in train if f.startswith("--steps=")).split("=")[1])
+                    cycles, timing = parse_training_log(output, steps)
+                    evals = {}
+                    for lay in self.layouts(preset):
+                        start = time.perf_counter()
+                        evals[lay] = evaluate_checkpoint(out / CHECKPOINT, preset.env_config(lay), episodes)
+                        timing[f"evaluation_{lay or 'env'}_s"] = time.perf_counter() - start
+                for lay, overall in evals.items():
+                    aer = overall["avg_sum_reward"]
+                    self._save(
+                        {
+                            "table": table, "env": name, "method": method, "seed": seed, "eval_layouts": lay,
+                            "P": performance([aer], r_expert, r_random), "AER": aer,
+                            "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
+                            "train_seconds": train_seconds,
+                            "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
+                            "timing": timing, "cycles": cycles,
+                        }
+                    )  # fmt: skip
+
+
+# ---------------------------------------------------------------- report
+
+METHOD_NAMES = {"expert": "Expert", "random": "Random", "bc": "BC", "bco": "BCO(α)", "iupe": "IUPE"}
+ENV_NAMES = {"cartpole": "CartPole", "acrobot": "Acrobot", "mountaincar": "MountainCar", "maze3": "Maze 3×3",
+             "maze5": "Maze 5×5", "maze10": "Maze 10×10"}  # fmt: skip
+
+
+def _group(records: list[dict], **match) -> list[dict]:
+    return [r for r in records if all(r.get(k) == v for k, v in match.items())]
+
+
+def _cell(rows: list[dict]) -> str:
+    if not rows:
+        return "–"
+    p, aer = np.array([r["P"] for r in rows]), np.array([r["AER"] for r in rows])
+    if len(rows) == 1:
+        return f"{p[0]:.3f} / {aer[0]:.3f}"
+    return f"{p.mean():.3f} ± {p.std():.3f} / {aer.mean():.3f} ± {aer.std():.3f} (n={len(rows)})"
+
+
+def _table(records, table, envs, methods, layouts, paper=None) -> list[str]:
+    head = "| method | " + " | ".join(ENV_NAMES.get(e, e) for e in envs) + " |"
+    lines = [head, "|---" * (len(envs) + 1) + "|"]
+    for method in methods:
+        cells = []
+        for env in envs:
+            lay = layouts(env)
+            cells.append(_cell(_group(records, table=table, env=env, method=method, eval_layouts=lay)))
+        lines.append(f"| {METHOD_NAMES.get(method, method)} (ours) | " + " | ".join(cells) + " |")
+        if paper and method in paper:
+            ref = paper[method]
+            lines.append(
+                f"| {METHOD_NAMES.get(method, method)} (paper) | "
+                + " | ".join(f"{ref[e][0]:.3f} / {ref[e][1]:.3f}" if e in ref else "–" for e in envs)
+                + " |"
+            )
+    return lines
+
+
+def write_report(records: list[dict], out: Path, command: str, wall_seconds: float | None = None) -> list[Path]:
+    """results.md, results.json and the PNG plots from all records."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(records, indent=1) + "\n")
+    envs1 = [e for e in PRESETS if _group(records, table="table1", env=e)]
+    methods = ["expert", "random", "bc", "bco", "iupe"]
+    refs = {(r["table"], r["env"]): (r["R_expert"], r["R_random"]) for r in records}
+    lines = [
+        "# Benchmark: the paper's Tables 1 and 2 on lerobot_iupe",
+        "",
+        f"Produced by `{command}` on a 2-core CPU, no GPU. Cells: P / AER, mean ± std over training seeds "
+        "(expert and random rows: the built-in agents, one evaluation). Evaluation: "
+        f"{records[0]['eval_episodes'] if records else '?'} episodes on seeds {EVAL_SEED}… never used in training; "
+        "mazes on the demonstration layouts (the paper's protocol) and on held-out layouts.",
+        "",
+        "References (P = (R − R_random) / (R_expert − R_random)): R_expert = mean return of the expert "
+        "demonstrations, R_random = uniform-random policy over 100 episodes (seeds 100000…):",
+        "",
+        *[f"- {t} {ENV_NAMES.get(e, e)}: R_expert {x:.3f}, R_random {y:.3f}" for (t, e), (x, y) in refs.items()],
+        "",
+        "## Table 1 (demonstration layouts for mazes)",
+        "",
+        *_table(records, "table1", envs1, methods, lambda e: "demo" if e.startswith("maze") else None, PAPER_TABLE1),
+    ]
+    mazes = [e for e in envs1 if e.startswith("maze")]
+    if mazes:
+        lines += ["", "## Table 1, mazes on held-out layouts (not measured in the paper)", ""]
+        lines += _table(records, "table1", mazes, methods, lambda e: "heldout")
+    if _group(records, table="ablation"):
+        lines += ["", "## Table 2: ablation on Maze 10×10 (S = sampling, E = exploration, A = attention on)", ""]
+        lines += ["| variant | ours, demo layouts | ours, held-out layouts | paper |", "|---|---|---|---|"]
+        for variant in ABLATION:
+            demo = _cell(_group(records, table="ablation", method=variant, eval_layouts="demo"))
+            held = _cell(_group(records, table="ablation", method=variant, eval_layouts="heldout"))
+            ref = PAPER_TABLE2[variant]
+            lines.append(f"| {METHOD_NAMES.get(variant, variant)} | {demo} | {held} | {ref[0]:.3f} / {ref[1]:.3f} |")
+    low = [e for e in LOW_DATA if _group(records, table="lowdata", env=e)]
+    if low:
+        lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions", ""]
+        lines += _table(records, "lowdata", low, ["bco", "S", "E", "SE", "iupe"], lambda e: None)
+    lines += ["", "## Where the time goes (mean seconds per training run)", ""]
+    lines += [
+        "| table | env | method | runs | train (wall) | rollouts | IDM training | data loading | PM + other | eval |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    trained = [r for r in records if r["seed"] is not None]
+    keys = sorted({(r["table"], r["env"], r["method"]) for r in trained}, key=str)
+    for table, env, method in keys:
+        rows = [r for r in _group(trained, table=table, env=env, method=method) if r["eval_layouts"] != "heldout"]
+        mean = lambda k, rows=rows: float(np.mean([r["timing"].get(k, 0.0) for r in rows]))  # noqa: E731
+        train = float(np.mean([r["train_seconds"] for r in rows]))
+        evals = float(np.mean([sum(v for k, v in r["timing"].items() if k.startswith("evaluation")) for r in rows]))
+        other = train - mean("rollouts_s") - mean("idm_s") - mean("data_loading_s")
+        lines.append(
+            f"| {table} | {ENV_NAMES.get(env, env)} | {METHOD_NAMES.get(method, method)} | {len(rows)} | {train:.1f} "
+            f"| {mean('rollouts_s'):.1f} | {mean('idm_s'):.1f} | {mean('data_loading_s'):.1f} | {other:.1f} "
+            f"| {evals:.1f} |"
+        )
+    total_train = sum(r["train_seconds"] for r in trained if r["eval_layouts"] != "heldout")
+    total_eval = sum(sum(v for k, v in r["timing"].items() if k.startswith("evaluation")) for r in trained
+                     if r["eval_layouts"] != "heldout")  # fmt: skip
+    lines += ["", f"Total: training {total_train / 60:.1f} min, evaluation {total_eval / 60:.1f} min"
+              + (f", this call {wall_seconds / 60:.1f} min wall-clock." if wall_seconds else ".")]  # fmt: skip
+    plots = plot_results(records, out)
+    lines += ["", "## Plots", "", *[f"![{p.stem}]({p.name})" for p in plots]]
+    (out / "results.md").write_text("\n".join(lines) + "\n")
+    return [out / "results.md", out / "results.json", *plots]
+
+
+def plot_results(records: list[dict], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    curves = [r for r in records if r["cycles"] and r["eval_layouts"] != "heldout"]
+    groups = sorted({(r["table"], r["env"]) for r in curves}, key=str)
+    if groups:
+        fig, axes = plt.subplots(2, len(groups), figsize=(4 * len(groups), 6), squeeze=False)
+        for col, (table, env) in enumerate(groups):
+            for method in sorted({r["method"] for r in _group(curves, table=table, env=env)}, key=str):
+                runs = _group(curves, table=table, env=env, method=method)
+                n = min(len(r["cycles"]) for r in runs)
+                for row, key in enumerate(("success_rate", "return")):
+                    values = np.array([[c[key] for c in r["cycles"][:n]] for r in runs])
+                    x = np.arange(1, n + 1)
+                    axes[row, col].plot(x, values.mean(0), label=METHOD_NAMES.get(method, method))
+                    axes[row, col].fill_between(x, values.min(0), values.max(0), alpha=0.2)
+            axes[0, col].set_title(f"{ENV_NAMES.get(env, env)} ({table})")
+            axes[0, col].set_ylabel("rollout success rate")
+            axes[1, col].set_ylabel("rollout return (AER)")
+            axes[1, col].set_xlabel("cycle")
+            axes[0, col].legend(fontsize=7)
+        fig.tight_layout()
+        paths.append(out / "cycles.png")
+        fig.savefig(paths[-1], dpi=90)
+        plt.close(fig)
+    table1 = [r for r in records if r["table"] == "table1" and r["eval_layouts"] in (None, "demo")]
+    envs = [e for e in PRESETS if _group(table1, env=e)]
+    if envs:
+        methods = ["bc", "bco", "iupe"]
+        fig, ax = plt.subplots(figsize=(max(6, 2 * len(envs)), 4))
+        width = 0.13
+        for i, method in enumerate(methods):
+            ours = [_group(table1, env=e, method=method) for e in envs]
+            mean = [np.mean([r["P"] for r in rows]) if rows else np.nan for rows in ours]
+            std = [np.std([r["P"] for r in rows]) if rows else 0 for rows in ours]
+            x = np.arange(len(envs)) + (2 * i - 2.5) * width
+            ax.bar(x, mean, width, yerr=std, label=f"{METHOD_NAMES[method]} (ours)", color=f"C{i}")
+            paper = [PAPER_TABLE1[method][e][0] for e in envs]
+            ax.bar(x + width, paper, width, label=f"{METHOD_NAMES[method]} (paper)", color=f"C{i}", alpha=0.4,
+                   hatch="//")  # fmt: skip
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xticks(np.arange(len(envs)), [ENV_NAMES.get(e, e) for e in envs])
+        ax.set_ylabel("P (1 = expert, 0 = random)")
+        ax.legend(fontsize=7, ncol=3)
+        fig.tight_layout()
+        paths.append(out / "performance.png")
+        fig.savefig(paths[-1], dpi=90)
+        plt.close(fig)
+    return paths

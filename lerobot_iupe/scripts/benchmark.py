@@ -1,0 +1,63 @@
+"""lerobot-iupe-benchmark: the paper's Table 1 (Expert, Random, BC, BCO(α), IUPE on CartPole, Acrobot,
+MountainCar, Maze 3×3/5×5/10×10), its Table 2 (the ablation on Maze 10×10) and a low-data table.
+
+Each trained method goes through `lerobot-train`; evaluation is LeRobot's own (`eval_policy_all`, as in
+`lerobot-eval`) on seeds never used in training. Runs are recorded as they finish in <work>/runs.jsonl, so an
+interrupted benchmark resumes; <out>/results.md, results.json and the PNG plots are rebuilt at the end.
+
+Examples:
+    lerobot-iupe-benchmark                                  # Table 1, 3 seeds, 100 evaluation episodes
+    lerobot-iupe-benchmark --tables table1 ablation lowdata
+    lerobot-iupe-benchmark --envs cartpole acrobot --seeds 0 1 2
+    lerobot-iupe-benchmark --quick                          # smoke test: CartPole + Maze 3×3, tiny budgets
+"""
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from lerobot_iupe.benchmark import ABLATION, LOW_DATA, PRESETS, Benchmark, write_report
+
+METHODS = ["expert", "random", "bc", "bco", "iupe"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata"])
+    parser.add_argument("--envs", nargs="+", default=list(PRESETS), choices=list(PRESETS), help="Table 1 envs")
+    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS, help="Table 1 methods")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
+    parser.add_argument("--eval_episodes", type=int, default=100)
+    parser.add_argument("--quick", action="store_true", help="CartPole + Maze 3×3, 1 seed, 10 episodes, tiny runs")
+    parser.add_argument("--work", default="outputs/benchmark", help="datasets, runs and runs.jsonl")
+    parser.add_argument("--out", default="benchmarks", help="where results.md/json and the plots go")
+    args = parser.parse_args()
+    if args.quick:
+        args.envs = [e for e in args.envs if e in ("cartpole", "maze3")] or ["cartpole"]
+        args.seeds, args.eval_episodes = args.seeds[:1], min(args.eval_episodes, 10)
+    start = time.perf_counter()
+    bench = Benchmark(Path(args.work), eval_episodes=args.eval_episodes, quick=args.quick)
+    try:
+        if "table1" in args.tables:
+            for env in args.envs:
+                bench.run_env("table1", env, PRESETS[env], args.methods, args.seeds)
+        if "lowdata" in args.tables:
+            for env, preset in LOW_DATA.items():
+                bench.run_env("lowdata", env, preset, ["bco", "S", "E", "SE", "iupe"], args.seeds)
+        if "ablation" in args.tables:
+            bench.run_env("ablation", "maze10", PRESETS["maze10"], ABLATION, args.seeds)
+    except RuntimeError as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(1)
+    finally:
+        command = shlex.join(["lerobot-iupe-benchmark", *sys.argv[1:]])
+        records = bench.records()
+        if records:
+            paths = write_report(records, Path(args.out), command, time.perf_counter() - start)
+            print("\n".join(["wrote:", *map(str, paths)]))
+
+
+if __name__ == "__main__":
+    main()
