@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import re
+import shlex
 import subprocess
 import sys
 import time
@@ -113,25 +114,36 @@ def method_flags(method: str) -> list[str]:
     ]
 
 
-def run_cli(*args: str, log: Path | None = None) -> str:
-    """Run a console script; its output goes to ``log`` (and is returned)."""
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True)
-    output = result.stdout + result.stderr
+def run_cli(*args: str, log: Path | None = None, echo: bool = False) -> str:
+    """Run a console script, printing its command line (and its output with ``echo``); the output is returned
+    and written to ``log``."""
+    print("$", shlex.join(args), flush=True)
+    process = subprocess.Popen(
+        [str(BIN / args[0]), *args[1:]], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    lines = []
+    for line in process.stdout:
+        lines.append(line)
+        if echo:
+            print(line, end="", flush=True)
+    output = "".join(lines)
     if log is not None:
         log.parent.mkdir(parents=True, exist_ok=True)
         log.write_text(output)
-    if result.returncode != 0:
-        raise RuntimeError(f"{args[0]} failed ({result.returncode}); see {log}\n{output[-2000:]}")
+    if process.wait() != 0:
+        raise RuntimeError(f"{args[0]} failed ({process.returncode}); see {log}\n{output[-2000:]}")
     return output
 
 
-def collect_datasets(name: str, preset: EnvPreset, data_dir: Path) -> dict[str, Path]:
+def collect_datasets(name: str, preset: EnvPreset, data_dir: Path, quick: bool = False) -> dict[str, Path]:
     """Expert (state only), the same expert episodes with actions (for BC), random pre-demonstrations."""
     paths = {}
+    n_expert, n_random = (min(preset.expert_episodes, 5), min(preset.random_episodes, 60)) if quick else (
+        preset.expert_episodes, preset.random_episodes)  # fmt: skip
     for kind, agent, episodes, extra in [
-        ("expert", "expert", preset.expert_episodes, ["--seed=0"]),
-        ("expert-actions", "expert", preset.expert_episodes, ["--seed=0", "--keep_actions=true"]),
-        ("random", "random", preset.random_episodes, ["--seed=1000", *preset.random_flags]),
+        ("expert", "expert", n_expert, ["--seed=0"]),
+        ("expert-actions", "expert", n_expert, ["--seed=0", "--keep_actions=true"]),
+        ("random", "random", n_random, ["--seed=1000", *preset.random_flags]),
     ]:
         root = data_dir / f"{name}-{kind}"
         if not (root / "meta" / "iupe.json").exists():
@@ -196,6 +208,7 @@ class Benchmark:
     work: Path
     eval_episodes: int = 100
     quick: bool = False
+    echo: bool = False  # stream lerobot-train's output (the demo) instead of only logging it
 
     @property
     def records_file(self) -> Path:
@@ -226,7 +239,7 @@ class Benchmark:
         return ["demo", "heldout"] if preset.is_maze else [None]
 
     def run_env(self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int]) -> None:
-        data = collect_datasets(f"{table}-{name}", preset, self.work / "data")
+        data = collect_datasets(f"{table}-{name}", preset, self.work / "data", self.quick)
         r_expert, r_random = self.references(name, preset, data)
         episodes = self.eval_episodes
         for method in methods:
@@ -250,7 +263,7 @@ class Benchmark:
                         f"--policy.pre_demos_root={data['random']}", f"--output_dir={out}", "--policy.device=cpu",
                         "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
                         f"--seed={seed}", f"--policy.seed={seed}", *train, *method_flags(method),
-                        log=out.with_suffix(".log"),
+                        log=out.with_suffix(".log"), echo=self.echo,
                     )  # fmt: skip
                     train_seconds = time.perf_counter() - start
                     steps = int(next(f for f in train if f.startswith("--steps=")).split("=")[1])
@@ -404,6 +417,9 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
                     axes[row, col].fill_between(x, values.min(0), values.max(0), alpha=0.2)
             axes[0, col].set_title(f"{ENV_NAMES.get(env, env)} ({table})")
             axes[0, col].set_ylabel("rollout success rate")
+            axes[0, col].set_ylim(-0.05, 1.05)
+            for ax in axes[:, col]:
+                ax.xaxis.get_major_locator().set_params(integer=True)
             axes[1, col].set_ylabel("rollout return (AER)")
             axes[1, col].set_xlabel("cycle")
             axes[0, col].legend(fontsize=7)

@@ -224,15 +224,27 @@ def last_frame_mask(meta: LeRobotDatasetMetadata, total_frames: int) -> np.ndarr
 # ---------------------------------------------------------------- writing
 
 
-def _link_or_copy(src: str, dst: str) -> None:
-    # Video files are never rewritten here, so a hard link is a free, safe copy; anything else is copied.
-    if f"{os.sep}videos{os.sep}" in src:
-        try:
-            os.link(src, dst)
-            return
-        except OSError:
-            pass
-    shutil.copy2(src, dst)
+def copy_dataset(root: Path, staged: Path) -> None:
+    """Copy a dataset root; its video files are hard-linked (free, and never written here), the rest copied."""
+    videos = (root / "videos").resolve()
+
+    def link_or_copy(src: str, dst: str) -> None:
+        if Path(src).resolve().is_relative_to(videos):
+            try:
+                os.link(src, dst)
+                return
+            except OSError:
+                pass
+        shutil.copy2(src, dst)
+
+    shutil.copytree(root, staged, copy_function=link_or_copy)
+
+
+def _rewrite(path: Path, write) -> None:
+    """Write a new file and rename it over ``path``: an old inode (maybe shared) is never written into."""
+    fresh = path.with_name(path.name + ".new")
+    write(fresh)
+    os.replace(fresh, path)
 
 
 def action_feature(checkpoint: str, mode: str) -> dict:
@@ -268,7 +280,8 @@ def write_labels(staged: Path, labels: np.ndarray, feature: dict) -> None:
         df = pd.read_parquet(path)
         df[ACTION] = labels[df["index"].to_numpy()]
         table = datasets.Dataset.from_pandas(df[list(hf_features)], features=hf_features, preserve_index=False)
-        write_table_one_row_group_per_episode(table.with_format("arrow")[:], path)
+        arrow = table.with_format("arrow")[:]
+        _rewrite(path, lambda fresh, arrow=arrow: write_table_one_row_group_per_episode(arrow, fresh))
 
     episode_stats = []
     for path in sorted((staged / "meta" / "episodes").glob("*/*.parquet")):
@@ -279,7 +292,7 @@ def write_labels(staged: Path, labels: np.ndarray, feature: dict) -> None:
         ]
         for stat in per_episode[0]:
             df[f"stats/{ACTION}/{stat}"] = [s[stat].tolist() for s in per_episode]
-        df.to_parquet(path)
+        _rewrite(path, df.to_parquet)
         episode_stats += [{ACTION: s} for s in per_episode]
     stats = load_stats(staged) or {}
     stats[ACTION] = aggregate_stats(episode_stats)[ACTION]
@@ -355,7 +368,7 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
         return report
 
     with staged_directory(root, overwrite=True) as staged:
-        shutil.copytree(root, staged, copy_function=_link_or_copy)
+        copy_dataset(root, staged)
         write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode))
         iupe_meta = read_iupe_meta(staged)
         iupe_meta.update(
