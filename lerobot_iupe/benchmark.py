@@ -76,13 +76,13 @@ class EnvPreset:
         return [f"--env.{k}={v}" for k, v in self.env.items()]
 
 
-VECTOR_TRAIN = ["--steps=200", "--batch_size=128", "--policy.cycle_steps=50"]
+VECTOR_TRAIN = ["--steps=400", "--batch_size=128", "--policy.cycle_steps=100"]
 MAZE_RANDOM = ["--random_start=true"]
 PRESETS = {
     "cartpole": EnvPreset({"type": "cartpole"}, 10, 400, VECTOR_TRAIN),
     "acrobot": EnvPreset({"type": "acrobot"}, 10, 40, VECTOR_TRAIN),
-    "mountaincar": EnvPreset({"type": "mountaincar"}, 10, 100, ["--steps=600", "--batch_size=128",
-                             "--policy.cycle_steps=100"]),
+    "mountaincar": EnvPreset({"type": "mountaincar"}, 10, 100, ["--steps=1000", "--batch_size=128",
+                             "--policy.cycle_steps=200", "--policy.optimizer_lr=1e-2"]),
     "maze3": EnvPreset({"type": "maze", "size": 3}, 100, 400, ["--steps=300", "--batch_size=64",
                        "--policy.cycle_steps=100"], MAZE_RANDOM + ["--env.max_steps=15"]),
     "maze5": EnvPreset({"type": "maze", "size": 5}, 100, 400, ["--steps=600", "--batch_size=64",

@@ -23,6 +23,9 @@ class IUPEConfig(PreTrainedConfig):
     exploration: bool = True
     attention: bool = True
     supervised: bool = False
+    # Exploration is a training mechanism (IDM labels and rollouts); select_action (lerobot-eval) takes the
+    # policy's argmax unless this is set, in which case an exploring policy keeps sampling from its softmax.
+    eval_sampling: bool = False
     # Number of discrete actions; 0 = read from the pre-demonstrations (or the env).
     n_actions: int = 0
     # Environment of the rollouts; None = the one recorded in the expert dataset's meta/iupe.json.
@@ -65,13 +68,15 @@ class IUPEConfig(PreTrainedConfig):
         if self.cycle_steps <= 0 or self.rollout_episodes <= 0:
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
 
+    # No delta_timestamps: the policy reads s_{t+1} (and, supervised, the action) from its in-memory copy of the
+    # expert dataset by each batch frame's index — LeRobot's per-item delta queries cost 12× more.
     @property
-    def observation_delta_indices(self) -> list[int]:
-        return [0, 1]
+    def observation_delta_indices(self) -> None:
+        return None
 
     @property
-    def action_delta_indices(self) -> list[int] | None:
-        return [0] if self.supervised else None
+    def action_delta_indices(self) -> None:
+        return None
 
     @property
     def reward_delta_indices(self) -> None:

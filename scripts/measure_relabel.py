@@ -39,7 +39,7 @@ def run(*args: str) -> str:
 
 def checkpoint_of(env: str) -> Path:
     out = Path("outputs/demo" if env == "cartpole" else f"outputs/demo-{env}")
-    checkpoint = out / "train/checkpoints/last/pretrained_model"
+    checkpoint = out / "runs/demo" / env / "iupe-s0/checkpoints/last/pretrained_model"
     if not checkpoint.exists():
         subprocess.run([sys.executable, "scripts/demo.py", "--env", env], check=True)
     return checkpoint
