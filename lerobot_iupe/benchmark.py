@@ -214,6 +214,17 @@ class Benchmark:
     def records_file(self) -> Path:
         return self.work / "runs.jsonl"
 
+    @property
+    def calls_file(self) -> Path:
+        return self.work / "calls.jsonl"
+
+    def log_call(self, command: str, seconds: float) -> list[dict]:
+        """Record one call of the benchmark (its command line and wall-clock); return all calls so far."""
+        self.work.mkdir(parents=True, exist_ok=True)
+        with self.calls_file.open("a") as f:
+            f.write(json.dumps({"command": command, "seconds": seconds}) + "\n")
+        return [json.loads(line) for line in self.calls_file.read_text().splitlines() if line.strip()]
+
     def records(self) -> list[dict]:
         if not self.records_file.exists():
             return []
@@ -326,7 +337,7 @@ def _table(records, table, envs, methods, layouts, paper=None) -> list[str]:
     return lines
 
 
-def write_report(records: list[dict], out: Path, command: str, wall_seconds: float | None = None) -> list[Path]:
+def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path]:
     """results.md, results.json and the PNG plots from all records."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(records, indent=1) + "\n")
@@ -336,7 +347,11 @@ def write_report(records: list[dict], out: Path, command: str, wall_seconds: flo
     lines = [
         "# Benchmark: the paper's Tables 1 and 2 on lerobot_iupe",
         "",
-        f"Produced by `{command}` on a 2-core CPU, no GPU. Cells: P / AER, mean ± std over training seeds "
+        "Produced on a 2-core CPU, no GPU, by these calls (in order; each resumes from the runs recorded before):",
+        "",
+        *[f"- `{c['command']}` ({c['seconds'] / 60:.1f} min)" for c in calls],
+        "",
+        "Cells: P / AER, mean ± std over training seeds "
         "(expert and random rows: the built-in agents, one evaluation). Evaluation: "
         f"{records[0]['eval_episodes'] if records else '?'} episodes on seeds {EVAL_SEED}… never used in training; "
         "mazes on the demonstration layouts (the paper's protocol) and on held-out layouts.",
@@ -387,8 +402,9 @@ def write_report(records: list[dict], out: Path, command: str, wall_seconds: flo
     total_train = sum(r["train_seconds"] for r in trained if r["eval_layouts"] != "heldout")
     total_eval = sum(sum(v for k, v in r["timing"].items() if k.startswith("evaluation")) for r in trained
                      if r["eval_layouts"] != "heldout")  # fmt: skip
-    lines += ["", f"Total: training {total_train / 60:.1f} min, evaluation {total_eval / 60:.1f} min"
-              + (f", this call {wall_seconds / 60:.1f} min wall-clock." if wall_seconds else ".")]  # fmt: skip
+    wall = sum(c["seconds"] for c in calls) / 60
+    lines += ["", f"Total: training {total_train / 60:.1f} min, evaluation {total_eval / 60:.1f} min, "
+              f"all calls {wall:.1f} min wall-clock."]  # fmt: skip
     plots = plot_results(records, out)
     lines += ["", "## Plots", "", *[f"![{p.stem}]({p.name})" for p in plots]]
     (out / "results.md").write_text("\n".join(lines) + "\n")

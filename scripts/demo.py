@@ -14,6 +14,7 @@ outputs/demo/runs/demo/<env>/iupe-s0/checkpoints/last/pretrained_model (outputs/
 
 import argparse
 import shutil
+import time
 from pathlib import Path
 
 from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark, write_report
@@ -27,9 +28,11 @@ def main() -> None:
     out = Path("outputs/demo" if args.env == "cartpole" else f"outputs/demo-{args.env}")
     shutil.rmtree(out, ignore_errors=True)
     bench = Benchmark(out, eval_episodes=args.eval_episodes, echo=True)
+    start = time.perf_counter()
     bench.run_env("demo", args.env, PRESETS[args.env], ["iupe"], [0])
+    calls = bench.log_call(f"python scripts/demo.py --env {args.env}", time.perf_counter() - start)
     records = bench.records()
-    write_report(records, out, f"python scripts/demo.py --env {args.env}")
+    write_report(records, out, calls)
     print("\n| method | env | eval layouts | P | AER | success | train s |")
     print("|---|---|---|---|---|---|---|")
     for r in records:

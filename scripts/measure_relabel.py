@@ -2,7 +2,7 @@
 rate of the same video. Writes benchmarks/relabel.md and benchmarks/relabel.json.
 
     python scripts/measure_relabel.py
-Checkpoints come from normal training runs, `python scripts/demo.py --env <env>` (run first when missing).
+Checkpoints come from normal training runs: the benchmark's (IUPE, seed 0) or `python scripts/demo.py --env <env>`.
 Expert data for the accuracy check is collected on seeds 700000… (never used in training), with its actions,
 then stripped of them with LeRobot's `remove_feature`, relabelled, and compared on every frame with a successor.
 """
@@ -19,6 +19,7 @@ import numpy as np
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.dataset_tools import remove_feature
 
+from lerobot_iupe.benchmark import CHECKPOINT
 from lerobot_iupe.dataset_utils import read_iupe_meta, write_iupe_meta
 from lerobot_iupe.relabel import video_chunks
 
@@ -38,8 +39,13 @@ def run(*args: str) -> str:
 
 
 def checkpoint_of(env: str) -> Path:
+    """The IUPE seed-0 checkpoint of the benchmark's Table 1 run if there is one, else a demo run's (trained now
+    when missing)."""
+    benchmark = Path("outputs/benchmark/runs/table1") / env / "iupe-s0" / CHECKPOINT
+    if benchmark.exists():
+        return benchmark
     out = Path("outputs/demo" if env == "cartpole" else f"outputs/demo-{env}")
-    checkpoint = out / "runs/demo" / env / "iupe-s0/checkpoints/last/pretrained_model"
+    checkpoint = out / "runs/demo" / env / "iupe-s0" / CHECKPOINT
     if not checkpoint.exists():
         subprocess.run([sys.executable, "scripts/demo.py", "--env", env], check=True)
     return checkpoint
@@ -140,7 +146,8 @@ def main() -> None:
     lines = [
         "# lerobot-iupe-relabel: measured",
         "",
-        f"Produced by `{command}` on a 2-core CPU (no GPU). Checkpoints: `scripts/demo.py --env <env>` runs.",
+        f"Produced by `{command}` on a 2-core CPU (no GPU). Checkpoints: "
+        + ", ".join(f"{env} `{checkpoint_of(env)}`" for env in ENVS) + ".",
         "",
         "## Label accuracy (expert data on unseen seeds, true actions stripped, relabelled, compared)",
         "",

@@ -31,6 +31,7 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     # a second call resumes: every run is already recorded, nothing is trained again
     again = run_cli("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'work'}", f"--out={out}")
     assert "lerobot-train" not in again.stdout
+    assert (out / "results.md").read_text().count("- `lerobot-iupe-benchmark --quick") == 2  # both calls listed
 
 
 def test_method_flags_name_the_mechanisms():

@@ -52,10 +52,10 @@ def main() -> None:
         print(f"error: {error}", file=sys.stderr)
         sys.exit(1)
     finally:
-        command = shlex.join(["lerobot-iupe-benchmark", *sys.argv[1:]])
+        calls = bench.log_call(shlex.join(["lerobot-iupe-benchmark", *sys.argv[1:]]), time.perf_counter() - start)
         records = bench.records()
         if records:
-            paths = write_report(records, Path(args.out), command, time.perf_counter() - start)
+            paths = write_report(records, Path(args.out), calls)
             print("\n".join(["wrote:", *map(str, paths)]))
 
 
