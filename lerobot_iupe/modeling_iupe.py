@@ -187,7 +187,7 @@ class ExpertFrames:
 
     def __init__(self, dataset: LeRobotDataset, key: str, with_actions: bool, device: torch.device):
         index = column_array(dataset.hf_dataset, "index").astype(np.int64)
-        self.row_of_index = np.full(int(index.max()) + 2, -1, dtype=np.int64)
+        self.row_of_index = np.full(int(index.max()) + 1, -1, dtype=np.int64)
         self.row_of_index[index] = np.arange(len(index))
         self.episodes = column_array(dataset.hf_dataset, "episode_index").astype(np.int64)
         self.states = torch.as_tensor(observation_array(dataset, key), device=device)
@@ -198,7 +198,9 @@ class ExpertFrames:
 
     def rows(self, frame_index: Tensor) -> np.ndarray:
         """Rows of the batch's frames (LeRobot's ``index`` column: absolute frame numbers)."""
-        rows = self.row_of_index[frame_index.detach().cpu().numpy().reshape(-1).astype(np.int64)]
+        index = frame_index.detach().cpu().numpy().reshape(-1).astype(np.int64)
+        known = (index >= 0) & (index < len(self.row_of_index))
+        rows = np.where(known, self.row_of_index[np.clip(index, 0, len(self.row_of_index) - 1)], -1)
         if (rows < 0).any():
             raise KeyError("the batch holds frame indices that are not in the expert dataset")
         return rows

@@ -1,8 +1,12 @@
+import numpy as np
+import pytest
 import torch
 from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.configuration_iupe import IUPEConfig
-from lerobot_iupe.modeling_iupe import IUPEPolicy, SpatialSelfAttention, TokenSelfAttention
+from lerobot_iupe.frames import column_array
+from lerobot_iupe.modeling_iupe import ExpertFrames, IUPEPolicy, SpatialSelfAttention, TokenSelfAttention
 
 
 def test_token_attention_is_identity_at_gamma_zero_and_mixes_positions_otherwise():
@@ -85,3 +89,18 @@ def test_select_action_is_argmax_unless_eval_sampling():
     sampling.load_state_dict(greedy.state_dict())
     torch.manual_seed(0)
     assert not torch.equal(sampling.select_action(obs)[:, 0], argmax)
+
+
+def test_expert_frames_give_successive_states_by_frame_index(cartpole_expert):
+    dataset = LeRobotDataset("local/cartpole-expert", root=cartpole_expert)
+    expert = ExpertFrames(dataset, "observation.state", with_actions=False, device=torch.device("cpu"))
+    states = column_array(dataset.hf_dataset, "observation.state")
+    first_episode_end = int(dataset.meta.episodes["dataset_to_index"][0])
+    rows = expert.rows(torch.tensor([0, 5, first_episode_end - 2]))
+    state, next_state = expert.pairs(rows)
+    assert np.array_equal(state.numpy(), states[[0, 5, first_episode_end - 2]])
+    assert np.array_equal(next_state.numpy(), states[[1, 6, first_episode_end - 1]])
+    with pytest.raises(ValueError, match="last of its episode"):
+        expert.pairs(expert.rows(torch.tensor([first_episode_end - 1])))
+    with pytest.raises(KeyError, match="not in the expert dataset"):
+        expert.rows(torch.tensor([len(states)]))
