@@ -78,17 +78,20 @@ class EnvPreset:
 
 VECTOR_TRAIN = ["--steps=400", "--batch_size=128", "--policy.cycle_steps=100"]
 MAZE_RANDOM = ["--random_start=true"]
+# An argmax policy that bumps into a wall stays put until the step cap: measured on Maze 3×3 (seed 0, 100 episodes),
+# IUPE scored AER −0.374 with argmax and 0.887 sampling from its softmax, BCO(α) 0.953 either way.
+MAZE_EVAL = ["--policy.eval_sampling=true"]
 PRESETS = {
     "cartpole": EnvPreset({"type": "cartpole"}, 10, 400, VECTOR_TRAIN),
     "acrobot": EnvPreset({"type": "acrobot"}, 10, 40, VECTOR_TRAIN),
     "mountaincar": EnvPreset({"type": "mountaincar"}, 10, 100, ["--steps=1000", "--batch_size=128",
                              "--policy.cycle_steps=200", "--policy.optimizer_lr=1e-2"]),
     "maze3": EnvPreset({"type": "maze", "size": 3}, 100, 400, ["--steps=300", "--batch_size=64",
-                       "--policy.cycle_steps=100"], MAZE_RANDOM + ["--env.max_steps=15"]),
+                       "--policy.cycle_steps=100", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=15"]),
     "maze5": EnvPreset({"type": "maze", "size": 5}, 100, 400, ["--steps=600", "--batch_size=64",
-                       "--policy.cycle_steps=150"], MAZE_RANDOM + ["--env.max_steps=25"]),
+                       "--policy.cycle_steps=150", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=25"]),
     "maze10": EnvPreset({"type": "maze", "size": 10}, 100, 400, ["--steps=1200", "--batch_size=64",
-                        "--policy.cycle_steps=200"], MAZE_RANDOM + ["--env.max_steps=60"]),
+                        "--policy.cycle_steps=200", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=60"]),
 }  # fmt: skip
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.
 LOW_DATA = {
