@@ -53,8 +53,18 @@ def chunk_spans(first: int, last: int, batch_size: int) -> Iterator[tuple[int, i
         start = stop
 
 
+def stored_frames(dataset: LeRobotDataset, key: str) -> np.ndarray:
+    """Every frame of a feature kept in the parquet files: float32 states (N, D), or uint8 (N, C, H, W) images
+    (``image`` features: PNGs, decoded by ``datasets``)."""
+    if dataset.meta.features[key]["dtype"] == "image":
+        images = np.asarray(dataset.hf_dataset.with_format("numpy")[key][:])
+        return np.ascontiguousarray(images.transpose(0, 3, 1, 2))
+    return column_array(dataset.hf_dataset, key).astype(np.float32)
+
+
 def state_chunks(dataset: LeRobotDataset, key: str, batch_size: int) -> Iterator[Chunk]:
-    states = torch.from_numpy(column_array(dataset.hf_dataset, key).astype(np.float32))
+    """Chunks of a feature kept in the parquet files (states or ``image`` features)."""
+    states = torch.from_numpy(stored_frames(dataset, key))
     for first, end in episode_bounds(dataset.meta):
         for start, stop in chunk_spans(first, end - 1, batch_size):
             yield Chunk(start, states[start : stop + 1], stop == end - 1)

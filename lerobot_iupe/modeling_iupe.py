@@ -36,7 +36,7 @@ from lerobot_iupe.algorithm import (
 )
 from lerobot_iupe.configuration_iupe import IUPEConfig
 from lerobot_iupe.dataset_utils import read_iupe_meta
-from lerobot_iupe.frames import column_array, video_chunks
+from lerobot_iupe.frames import column_array, stored_frames, video_chunks
 
 log = logging.getLogger("lerobot_iupe")
 
@@ -168,7 +168,7 @@ def observation_array(dataset: LeRobotDataset, key: str, video_backend: str = "p
     if dataset.meta.features[key]["dtype"] == "video":
         chunks = video_chunks(dataset.meta, key, 1024, video_backend)
         return np.concatenate([c.frames[: len(c.frames) - 1 + c.ends_episode].numpy() for c in chunks])
-    return column_array(dataset.hf_dataset, key).astype(np.float32)
+    return stored_frames(dataset, key)
 
 
 def load_transitions(dataset: LeRobotDataset, key: str, video_backend: str = "pyav") -> Transitions:

@@ -2,13 +2,15 @@ import json
 
 import numpy as np
 import pytest
+from conftest import collect as collect_fixture
 from conftest import run_cli
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe import collect as collect_module
 from lerobot_iupe.collect import CollectConfig, DatasetTarget, collect
 from lerobot_iupe.dataset_utils import read_iupe_meta
-from lerobot_iupe.envs import CartPoleEnvConfig
+from lerobot_iupe.envs import CartPoleEnvConfig, MazeEnvConfig
+from lerobot_iupe.frames import stored_frames
 
 
 def test_expert_dataset_is_state_only_and_complete(cartpole_expert):
@@ -33,6 +35,26 @@ def test_random_maze_video_dataset_has_actions_and_layouts(maze_random):
     assert 0 <= int(frame["action"]) < 4
     meta = read_iupe_meta(maze_random)
     assert meta["layout_ids"] == list(range(50, 56)) and meta["env"]["size"] == 3
+
+
+def test_maze_frames_stored_as_png_are_the_env_frames(data_dir):
+    root = collect_fixture(
+        data_dir, "maze3-png", "--env.type=maze", "--env.size=3", "--env.image_size=21", "--agent=expert",
+        "--episodes=2", "--keep_actions=true", "--video=false",
+    )  # fmt: skip
+    dataset = LeRobotDataset("local/maze3-png", root=root)
+    assert dataset.features["observation.image"]["dtype"] == "image"
+    assert not (root / "videos").exists()
+    frames = stored_frames(dataset, "observation.image")
+    assert frames.dtype == np.uint8 and frames.shape == (dataset.meta.total_frames, 3, 21, 21)
+    env = MazeEnvConfig(size=3, image_size=21).make()
+    observation, _ = env.reset(seed=0, options={"layout_id": 0})
+    replay = [observation["pixels"]]
+    for i in range(int(dataset.meta.episodes["length"][0]) - 1):
+        observation = env.step(int(dataset[i]["action"]))[0]
+        replay.append(observation["pixels"])
+    assert np.array_equal(frames[: len(replay)], np.stack(replay).transpose(0, 3, 1, 2))  # lossless
+    assert np.allclose(dataset[3]["observation.image"].numpy(), frames[3] / 255.0)  # LeRobot reads the same
 
 
 def test_keep_actions_stores_expert_actions(data_dir):
@@ -61,6 +83,7 @@ def test_keep_actions_stores_expert_actions(data_dir):
         (["--env.type=cartpole", "--episodes=0"], "--episodes must be a positive"),
         (["--env.type=maze", "--env.size=1"], "--env.size must be at least 2"),
         (["--env.type=cartpole", "--random_start=true"], "--random_start"),
+        (["--env.type=cartpole", "--video=false"], "--video=false only applies"),
     ],
 )
 def test_bad_input_is_refused_and_writes_nothing(tmp_path, args, message):
