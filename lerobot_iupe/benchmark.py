@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 import time
@@ -82,21 +83,21 @@ MAZE_RANDOM = ["--random_start=true"]
 # An argmax policy that bumps into a wall stays put until the step cap: measured on Maze 3×3 (seed 0, 100 episodes),
 # IUPE scored AER −0.374 with argmax and 0.887 sampling from its softmax, BCO(α) 0.953 either way.
 MAZE_EVAL = ["--policy.eval_sampling=true"]
-# Mazes at 3 px per maze block (2N+1 blocks a side) stored as PNG frames: the CNN's cost grows with the pixel count
-# (IDM step of 64 at 21 px 15 ms, at 63 px 61 ms) and LeRobot's loader reads a PNG 8x faster than a video frame.
+# Mazes at 3 px per maze block (2N+1 blocks a side; 10×10 at 2 px) stored as PNG frames: the CNN's cost grows with
+# the pixel count (IDM step of 64 at 21 px 15 ms, at 63 px 61 ms); LeRobot's loader reads a PNG 8x faster than video.
 MAZE_DATA = ["--video=false"]
 PRESETS = {
     "cartpole": EnvPreset({"type": "cartpole"}, 10, 400, VECTOR_TRAIN),
     "acrobot": EnvPreset({"type": "acrobot"}, 10, 40, VECTOR_TRAIN),
     "mountaincar": EnvPreset({"type": "mountaincar"}, 10, 100, ["--steps=1000", "--batch_size=128",
                              "--policy.cycle_steps=200", "--policy.optimizer_lr=1e-2"]),
-    "maze3": EnvPreset({"type": "maze", "size": 3, "image_size": 21}, 100, 400, ["--steps=300", "--batch_size=64",
-                       "--policy.cycle_steps=100", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=15"], MAZE_DATA),
-    "maze5": EnvPreset({"type": "maze", "size": 5, "image_size": 33}, 100, 400, ["--steps=600", "--batch_size=64",
-                       "--policy.cycle_steps=150", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=25"], MAZE_DATA),
-    "maze10": EnvPreset({"type": "maze", "size": 10, "image_size": 63}, 100, 400, ["--steps=1200",
-                        "--batch_size=64", "--policy.cycle_steps=200", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=60"],
-                        MAZE_DATA),
+    "maze3": EnvPreset({"type": "maze", "size": 3, "image_size": 21}, 100, 400, ["--steps=1000", "--batch_size=64",
+                       "--policy.cycle_steps=200", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=15"], MAZE_DATA),
+    "maze5": EnvPreset({"type": "maze", "size": 5, "image_size": 33}, 100, 400, ["--steps=1500", "--batch_size=64",
+                       "--policy.cycle_steps=250", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=25"], MAZE_DATA),
+    "maze10": EnvPreset({"type": "maze", "size": 10, "image_size": 42}, 100, 400, ["--steps=2000",
+                        "--batch_size=64", "--policy.cycle_steps=250", "--policy.idm_epochs=2", *MAZE_EVAL],
+                        MAZE_RANDOM + ["--env.max_steps=60"], MAZE_DATA),
 }  # fmt: skip
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.
 LOW_DATA = {
@@ -273,6 +274,7 @@ class Benchmark:
                     evals = {lay: evaluate_agent(method, preset.env_config(lay), episodes) for lay in layouts}
                 else:
                     out = self.work / "runs" / table / name / f"{method}-s{seed}"
+                    shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
                     train = QUICK_TRAIN if self.quick else preset.train
                     expert = data["expert-actions" if method == "bc" else "expert"]
                     start = time.perf_counter()

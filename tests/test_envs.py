@@ -88,6 +88,15 @@ def test_maze_layout_ranges():
     assert heldout_ids <= set(range(HELDOUT_LAYOUT_START, HELDOUT_LAYOUT_START + 10))
 
 
+@pytest.mark.parametrize(("size", "distinct", "shared"), [(3, 35, 88), (5, 100, 0)])
+def test_held_out_layouts_are_new_mazes_except_at_3x3(size, distinct, shared):
+    """The README's statement: 3×3 has too few mazes for 100 distinct layouts; 5×5 held-out mazes are all new."""
+    demo = {MazeLayout.generate(size, i).block_image().tobytes() for i in range(100)}
+    heldout = [MazeLayout.generate(size, HELDOUT_LAYOUT_START + i).block_image().tobytes() for i in range(100)]
+    assert len(demo) == distinct
+    assert sum(layout in demo for layout in heldout) == shared
+
+
 def test_cartpole_success_is_the_papers_goal():
     from lerobot_iupe.experts import cartpole_expert
 
