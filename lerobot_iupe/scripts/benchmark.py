@@ -47,7 +47,10 @@ def main() -> None:
             for env, preset in LOW_DATA.items():
                 bench.run_env("lowdata", env, preset, ["bco", "S", "E", "SE", "iupe"], args.seeds)
         if "ablation" in args.tables:
-            bench.run_env("ablation", "maze10", PRESETS["maze10"], ABLATION, args.seeds)
+            # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
+            bench.run_env("table1", "maze10", PRESETS["maze10"], ["bco", "iupe"], args.seeds)
+            variants = [v for v in ABLATION if v not in ("bco", "iupe")]
+            bench.run_env("ablation", "maze10", PRESETS["maze10"], variants, args.seeds, data_table="table1")
     except RuntimeError as error:
         print(f"error: {error}", file=sys.stderr)
         sys.exit(1)
