@@ -19,6 +19,7 @@ from test_hub import hub_env
 from lerobot_iupe import relabel as relabel_module
 from lerobot_iupe.collect import DatasetTarget
 from lerobot_iupe.dataset_utils import read_iupe_meta, write_iupe_meta
+from lerobot_iupe.frames import stored_frames
 from lerobot_iupe.relabel import CheckpointRef, RelabelConfig, relabel
 
 
@@ -163,6 +164,18 @@ def test_video_dataset_is_relabelled_in_streaming_batches(maze_run, data_dir):
     frame = dataset[1]
     assert frame["observation.image"].shape == (3, 64, 64) and 0 <= int(frame["action"]) < 4
     assert {k: v for k, v in tree_digest(stripped).items() if k.startswith("videos/")} == videos_before
+
+
+def test_png_frame_dataset_is_relabelled_and_keeps_its_frames(maze_run, data_dir):
+    _, stripped = labelled_and_stripped(
+        data_dir, "maze3-png-relabel", "--env.type=maze", "--env.size=3", "--episodes=2", "--video=false"
+    )
+    before = stored_frames(LeRobotDataset(f"local/{stripped.name}", root=stripped), "observation.image")
+    run_cli("lerobot-iupe-relabel", *relabel_args(maze_run / CHECKPOINT, stripped, "--batch_size=4"))
+    dataset = LeRobotDataset(f"local/{stripped.name}", root=stripped)
+    assert dataset.meta.features["observation.image"]["dtype"] == "image"
+    assert np.array_equal(stored_frames(dataset, "observation.image"), before)
+    assert 0 <= int(dataset[1]["action"]) < 4
 
 
 def test_a_failure_while_writing_keeps_the_original(cartpole_run, data_dir, monkeypatch):
