@@ -18,6 +18,7 @@ install: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check lerobot_iupe lerobot_policy_iupe.py scripts tests
+	$(VENV)/bin/ruff format --check lerobot_iupe lerobot_policy_iupe.py scripts tests
 	$(PY) -m pytest -q
 
 demo: $(STAMP)

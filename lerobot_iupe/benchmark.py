@@ -9,12 +9,15 @@ stopped; the report (results.md/json, plots) is rebuilt from all records on ever
 from __future__ import annotations
 
 import json
+import os
 import re
 import shlex
 import shutil
 import subprocess
 import sys
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -123,12 +126,13 @@ def method_flags(method: str) -> list[str]:
     ]
 
 
-def run_cli(*args: str, log: Path | None = None, echo: bool = False) -> str:
+def run_cli(*args: str, log: Path | None = None, echo: bool = False, threads: int = 0) -> str:
     """Run a console script, printing its command line (and its output with ``echo``); the output is returned
-    and written to ``log``."""
+    and written to ``log``. ``threads`` > 0 caps its CPU threads (OMP_NUM_THREADS)."""
     print("$", shlex.join(args), flush=True)
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads)} if threads else None
     process = subprocess.Popen(
-        [str(BIN / args[0]), *args[1:]], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        [str(BIN / args[0]), *args[1:]], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
     )
     lines = []
     for line in process.stdout:
@@ -193,9 +197,7 @@ def evaluate_agent(agent: str, env_cfg: EnvConfig, episodes: int) -> dict:
     return {"avg_sum_reward": float(returns.mean()), "pc_success": None}
 
 
-CYCLE_LINE = re.compile(
-    r"IUPE cycle (\d+): success r=([\d.]+) return=(-?[\d.]+).*rollouts ([\d.]+)s IDM ([\d.]+)s"
-)
+CYCLE_LINE = re.compile(r"IUPE cycle (\d+): success r=([\d.]+) return=(-?[\d.]+).*rollouts ([\d.]+)s IDM ([\d.]+)s")
 DATA_S = re.compile(r"data_s:([\d.]+)")
 
 
@@ -214,11 +216,33 @@ def parse_training_log(output: str, steps: int) -> tuple[list[dict], dict]:
 
 
 @dataclass
+class Run:
+    """One cell entry to produce: a method (and training seed) on an env's datasets."""
+
+    table: str
+    name: str
+    preset: EnvPreset
+    method: str
+    seed: int | None
+    data: dict[str, Path]
+    references: tuple[float, float]  # R_expert, R_random
+
+    @property
+    def cost(self) -> float:
+        """Rough relative duration (training steps × pixels), to start the longest runs first."""
+        if self.method in ("expert", "random"):
+            return 0.0
+        steps = int(next(f for f in self.preset.train if f.startswith("--steps=")).split("=")[1])
+        return steps * self.preset.env.get("image_size", 1) ** 2 * (0.3 if self.method == "bc" else 1.0)
+
+
+@dataclass
 class Benchmark:
     work: Path
     eval_episodes: int = 100
     quick: bool = False
     echo: bool = False  # stream lerobot-train's output (the demo) instead of only logging it
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     @property
     def records_file(self) -> Path:
@@ -246,9 +270,7 @@ class Benchmark:
             f.write(json.dumps(record) + "\n")
 
     def _done(self, table: str, env: str, method: str, seed: int | None) -> bool:
-        return any(
-            (r["table"], r["env"], r["method"], r["seed"]) == (table, env, method, seed) for r in self.records()
-        )
+        return any((r["table"], r["env"], r["method"], r["seed"]) == (table, env, method, seed) for r in self.records())
 
     def references(self, name: str, preset: EnvPreset, data: dict[str, Path]) -> tuple[float, float]:
         """R_expert: mean return of the expert demonstrations; R_random: uniform-random policy, 100 episodes."""
@@ -259,57 +281,91 @@ class Benchmark:
     def layouts(self, preset: EnvPreset) -> list[str | None]:
         return ["demo", "heldout"] if preset.is_maze else [None]
 
+    def plan(
+        self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int], data_table: str = ""
+    ) -> list[Run]:
+        """The unrecorded runs of ``methods`` × ``seeds`` on the datasets of ``data_table`` (default: ``table``),
+        collecting the datasets and measuring the references first."""
+        data = collect_datasets(f"{data_table or table}-{name}", preset, self.work / "data", self.quick)
+        references = self.references(name, preset, data)
+        return [
+            Run(table, name, preset, method, seed, data, references)
+            for method in methods
+            for seed in ([None] if method in ("expert", "random") else seeds)
+            if not self._done(table, name, method, seed)
+        ]
+
     def run_env(
         self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int], data_table: str = ""
     ) -> None:
-        """Train and evaluate ``methods`` × ``seeds`` on the datasets of ``data_table`` (default: ``table``)."""
-        data = collect_datasets(f"{data_table or table}-{name}", preset, self.work / "data", self.quick)
-        r_expert, r_random = self.references(name, preset, data)
-        episodes = self.eval_episodes
-        for method in methods:
-            for seed in [None] if method in ("expert", "random") else seeds:
-                if self._done(table, name, method, seed):
-                    continue
-                print(f"[benchmark] {table} {name} {method} seed={seed}", flush=True)
-                train_seconds, cycles, timing = 0.0, [], {}
-                if method in ("expert", "random"):
-                    layouts = self.layouts(preset)
-                    evals = {lay: evaluate_agent(method, preset.env_config(lay), episodes) for lay in layouts}
-                else:
-                    out = self.work / "runs" / table / name / f"{method}-s{seed}"
-                    shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
-                    train = QUICK_TRAIN if self.quick else preset.train
-                    expert = data["expert-actions" if method == "bc" else "expert"]
+        self.execute(self.plan(table, name, preset, methods, seeds, data_table))
+
+    def execute(self, runs: list[Run], jobs: int = 1) -> None:
+        """Train and evaluate ``runs``, ``jobs`` at a time (one CPU thread each when ``jobs`` > 1)."""
+        if jobs <= 1:
+            for run in runs:
+                self._execute(run, threads=0)
+            return
+        torch.set_num_threads(1)
+        # Largest runs first so that the last ones to start are short (longest-processing-time order).
+        runs = sorted(runs, key=lambda run: -run.cost)
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(self._execute, run, 1) for run in runs]
+            try:
+                for future in as_completed(futures):
+                    future.result()
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+
+    def _execute(self, run: Run, threads: int) -> None:
+        print(f"[benchmark] {run.table} {run.name} {run.method} seed={run.seed}", flush=True)
+        preset, episodes = run.preset, self.eval_episodes
+        train_seconds, cycles, timing = 0.0, [], {}
+        if run.method in ("expert", "random"):
+            with self._lock:
+                evals = {
+                    lay: evaluate_agent(run.method, preset.env_config(lay), episodes) for lay in self.layouts(preset)
+                }
+        else:
+            out = self.work / "runs" / run.table / run.name / f"{run.method}-s{run.seed}"
+            shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
+            train = QUICK_TRAIN if self.quick else preset.train
+            expert = run.data["expert-actions" if run.method == "bc" else "expert"]
+            start = time.perf_counter()
+            output = run_cli(
+                "lerobot-train", "--policy.type=iupe", f"--dataset.repo_id=local/{expert.name}",
+                f"--dataset.root={expert}", "--dataset.video_backend=pyav",
+                f"--policy.pre_demos_repo_id=local/{run.data['random'].name}",
+                f"--policy.pre_demos_root={run.data['random']}", f"--output_dir={out}", "--policy.device=cpu",
+                "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
+                f"--seed={run.seed}", f"--policy.seed={run.seed}", *train, *method_flags(run.method),
+                log=out.with_suffix(".log"), echo=self.echo, threads=threads,
+            )  # fmt: skip
+            train_seconds = time.perf_counter() - start
+            steps = int(next(f for f in train if f.startswith("--steps=")).split("=")[1])
+            cycles, timing = parse_training_log(output, steps)
+            evals = {}
+            # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
+            with self._lock:
+                for lay in self.layouts(preset):
                     start = time.perf_counter()
-                    output = run_cli(
-                        "lerobot-train", "--policy.type=iupe", f"--dataset.repo_id=local/{expert.name}",
-                        f"--dataset.root={expert}", "--dataset.video_backend=pyav",
-                        f"--policy.pre_demos_repo_id=local/{data['random'].name}",
-                        f"--policy.pre_demos_root={data['random']}", f"--output_dir={out}", "--policy.device=cpu",
-                        "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
-                        f"--seed={seed}", f"--policy.seed={seed}", *train, *method_flags(method),
-                        log=out.with_suffix(".log"), echo=self.echo,
-                    )  # fmt: skip
-                    train_seconds = time.perf_counter() - start
-                    steps = int(next(f for f in train if f.startswith("--steps=")).split("=")[1])
-                    cycles, timing = parse_training_log(output, steps)
-                    evals = {}
-                    for lay in self.layouts(preset):
-                        start = time.perf_counter()
-                        evals[lay] = evaluate_checkpoint(out / CHECKPOINT, preset.env_config(lay), episodes)
-                        timing[f"evaluation_{lay or 'env'}_s"] = time.perf_counter() - start
-                for lay, overall in evals.items():
-                    aer = overall["avg_sum_reward"]
-                    self._save(
-                        {
-                            "table": table, "env": name, "method": method, "seed": seed, "eval_layouts": lay,
-                            "P": performance([aer], r_expert, r_random), "AER": aer,
-                            "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
-                            "train_seconds": train_seconds,
-                            "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
-                            "timing": timing, "cycles": cycles,
-                        }
-                    )  # fmt: skip
+                    evals[lay] = evaluate_checkpoint(out / CHECKPOINT, preset.env_config(lay), episodes)
+                    timing[f"evaluation_{lay or 'env'}_s"] = time.perf_counter() - start
+        r_expert, r_random = run.references
+        with self._lock:
+            for lay, overall in evals.items():
+                aer = overall["avg_sum_reward"]
+                self._save(
+                    {
+                        "table": run.table, "env": run.name, "method": run.method, "seed": run.seed,
+                        "eval_layouts": lay, "P": performance([aer], r_expert, r_random), "AER": aer,
+                        "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
+                        "train_seconds": train_seconds,
+                        "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
+                        "timing": timing, "cycles": cycles,
+                    }
+                )  # fmt: skip
 
 
 # ---------------------------------------------------------------- report

@@ -147,7 +147,8 @@ def main() -> None:
         "# lerobot-iupe-relabel: measured",
         "",
         f"Produced by `{command}` on a 2-core CPU (no GPU). Checkpoints: "
-        + ", ".join(f"{env} `{checkpoint_of(env)}`" for env in ENVS) + ".",
+        + ", ".join(f"{env} `{checkpoint_of(env)}`" for env in ENVS)
+        + ".",
         "",
         "## Label accuracy (expert data on unseen seeds, true actions stripped, relabelled, compared)",
         "",

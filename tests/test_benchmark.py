@@ -10,11 +10,13 @@ from lerobot_iupe.benchmark import method_flags, parse_training_log
 def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     out = tmp_path / "out"
     args = ["--quick", "--envs", "cartpole", "maze3", "--methods", "random", "bco", "iupe"]
-    run_cli("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'work'}", f"--out={out}")
+    # two runs at a time: each run is recorded once, with its own evaluation
+    run_cli("lerobot-iupe-benchmark", *args, "--jobs=2", f"--work={tmp_path / 'work'}", f"--out={out}")
     records = json.loads((out / "results.json").read_text())
     keys = {"env", "method", "seed", "eval_layouts", "P", "AER", "success_rate", "train_seconds"}
     assert all(keys <= set(r) for r in records)
     trained = [r for r in records if r["method"] in ("bco", "iupe")]
+    assert len(trained) == 6
     assert {(r["env"], r["method"], r["eval_layouts"]) for r in trained} == {
         ("cartpole", "bco", None),
         ("cartpole", "iupe", None),
