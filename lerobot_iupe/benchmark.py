@@ -148,7 +148,9 @@ def run_cli(*args: str, log: Path | None = None, echo: bool = False, threads: in
     return output
 
 
-def collect_datasets(name: str, preset: EnvPreset, data_dir: Path, quick: bool = False) -> dict[str, Path]:
+def collect_datasets(
+    name: str, preset: EnvPreset, data_dir: Path, quick: bool = False, threads: int = 0
+) -> dict[str, Path]:
     """Expert (state only), the same expert episodes with actions (for BC), random pre-demonstrations."""
     paths = {}
     n_expert, n_random = (min(preset.expert_episodes, 5), min(preset.random_episodes, 60)) if quick else (
@@ -164,6 +166,7 @@ def collect_datasets(name: str, preset: EnvPreset, data_dir: Path, quick: bool =
                 "lerobot-iupe-collect", *preset.env_flags(), f"--agent={agent}", f"--episodes={episodes}", *extra,
                 *preset.data_flags,
                 f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", "--overwrite=true",
+                threads=threads,
             )  # fmt: skip
         paths[kind] = root
     return paths
@@ -282,11 +285,18 @@ class Benchmark:
         return ["demo", "heldout"] if preset.is_maze else [None]
 
     def plan(
-        self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int], data_table: str = ""
+        self,
+        table: str,
+        name: str,
+        preset: EnvPreset,
+        methods: list[str],
+        seeds: list[int],
+        data_table: str = "",
+        threads: int = 0,
     ) -> list[Run]:
         """The unrecorded runs of ``methods`` × ``seeds`` on the datasets of ``data_table`` (default: ``table``),
         collecting the datasets and measuring the references first."""
-        data = collect_datasets(f"{data_table or table}-{name}", preset, self.work / "data", self.quick)
+        data = collect_datasets(f"{data_table or table}-{name}", preset, self.work / "data", self.quick, threads)
         references = self.references(name, preset, data)
         return [
             Run(table, name, preset, method, seed, data, references)
@@ -294,6 +304,21 @@ class Benchmark:
             for seed in ([None] if method in ("expert", "random") else seeds)
             if not self._done(table, name, method, seed)
         ]
+
+    def plan_all(self, requests: list[dict], jobs: int = 1) -> list[Run]:
+        """``plan(**request)`` for each request, ``jobs`` datasets collected at a time; requests that share
+        datasets are planned one after the other, so that no dataset is written twice at once."""
+        by_data: dict[str, list[dict]] = {}
+        for request in requests:
+            key = f"{request.get('data_table') or request['table']}-{request['name']}"
+            by_data.setdefault(key, []).append(request)
+        threads = 1 if jobs > 1 else 0
+
+        def plan_group(group: list[dict]) -> list[Run]:
+            return [run for request in group for run in self.plan(**request, threads=threads)]
+
+        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            return [run for runs in pool.map(plan_group, by_data.values()) for run in runs]
 
     def run_env(
         self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int], data_table: str = ""
@@ -419,7 +444,10 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
         "",
         "Produced on a 2-core CPU, no GPU, by these calls (in order; each resumes from the runs recorded before):",
         "",
-        *[f"- `{c['command']}` ({c['seconds'] / 60:.1f} min)" for c in calls],
+        *[
+            f"- `{c['command']}` ({c['seconds'] / 60:.1f} min)" + (f": {c['note']}" if "note" in c else "")
+            for c in calls
+        ],
         "",
         "Cells: P / AER, mean ± std over training seeds "
         "(expert and random rows: the built-in agents, one evaluation). Evaluation: "

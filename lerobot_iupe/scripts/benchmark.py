@@ -45,18 +45,21 @@ def main() -> None:
     start = time.perf_counter()
     bench = Benchmark(Path(args.work), eval_episodes=args.eval_episodes, quick=args.quick)
     try:
-        runs = []
+        requests = []
         if "table1" in args.tables:
             for env in args.envs:
-                runs += bench.plan("table1", env, PRESETS[env], args.methods, args.seeds)
+                requests.append(dict(table="table1", name=env, preset=PRESETS[env], methods=args.methods))
         if "lowdata" in args.tables:
             for env, preset in LOW_DATA.items():
-                runs += bench.plan("lowdata", env, preset, ["bco", "S", "E", "SE", "iupe"], args.seeds)
+                requests.append(dict(table="lowdata", name=env, preset=preset, methods=["bco", "S", "E", "SE", "iupe"]))
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
-            runs += bench.plan("table1", "maze10", PRESETS["maze10"], ["bco", "iupe"], args.seeds)
+            requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))
             variants = [v for v in ABLATION if v not in ("bco", "iupe")]
-            runs += bench.plan("ablation", "maze10", PRESETS["maze10"], variants, args.seeds, data_table="table1")
+            requests.append(
+                dict(table="ablation", name="maze10", preset=PRESETS["maze10"], methods=variants, data_table="table1")
+            )
+        runs = bench.plan_all([{**request, "seeds": args.seeds} for request in requests], jobs=args.jobs)
         unique = {(run.table, run.name, run.method, run.seed): run for run in runs}
         bench.execute(list(unique.values()), jobs=args.jobs)
     except RuntimeError as error:
