@@ -126,6 +126,11 @@ def method_flags(method: str) -> list[str]:
     ]
 
 
+def train_steps(train_flags: list[str]) -> int:
+    """The ``--steps=`` value of a list of lerobot-train flags."""
+    return int(next(f for f in train_flags if f.startswith("--steps=")).split("=")[1])
+
+
 def run_cli(*args: str, log: Path | None = None, echo: bool = False, threads: int = 0) -> str:
     """Run a console script, printing its command line (and its output with ``echo``); the output is returned
     and written to ``log``. ``threads`` > 0 caps its CPU threads (OMP_NUM_THREADS)."""
@@ -235,8 +240,11 @@ class Run:
         """Rough relative duration (training steps × pixels), to start the longest runs first."""
         if self.method in ("expert", "random"):
             return 0.0
-        steps = int(next(f for f in self.preset.train if f.startswith("--steps=")).split("=")[1])
-        return steps * self.preset.env.get("image_size", 1) ** 2 * (0.3 if self.method == "bc" else 1.0)
+        return (
+            train_steps(self.preset.train)
+            * self.preset.env.get("image_size", 1) ** 2
+            * (0.3 if self.method == "bc" else 1.0)
+        )
 
 
 @dataclass
@@ -368,8 +376,7 @@ class Benchmark:
                 log=out.with_suffix(".log"), echo=self.echo, threads=threads,
             )  # fmt: skip
             train_seconds = time.perf_counter() - start
-            steps = int(next(f for f in train if f.startswith("--steps=")).split("=")[1])
-            cycles, timing = parse_training_log(output, steps)
+            cycles, timing = parse_training_log(output, train_steps(train))
             evals = {}
             # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
             with self._lock:
