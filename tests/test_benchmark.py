@@ -36,6 +36,14 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     assert (out / "results.md").read_text().count("- `lerobot-iupe-benchmark --quick") == 2  # both calls listed
 
 
+def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):
+    work, out = tmp_path / "work", tmp_path / "out"
+    result = run_cli("lerobot-iupe-benchmark", "--quick", "--jobs=0", f"--work={work}", f"--out={out}", check=False)
+    assert result.returncode == 2
+    assert "--jobs: must be 1 or more" in result.stderr
+    assert not work.exists() and not out.exists()
+
+
 def test_method_flags_name_the_mechanisms():
     assert method_flags("bco") == ["--policy.sampling=false", "--policy.exploration=false", "--policy.attention=false"]
     assert method_flags("SE") == ["--policy.sampling=true", "--policy.exploration=true", "--policy.attention=false"]

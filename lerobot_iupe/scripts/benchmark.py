@@ -24,6 +24,13 @@ from lerobot_iupe.benchmark import ABLATION, LOW_DATA, PRESETS, Benchmark, write
 METHODS = ["expert", "random", "bc", "bco", "iupe"]
 
 
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be 1 or more (runs trained at once), got {value}")
+    return value
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata"])
@@ -31,7 +38,7 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS, help="Table 1 methods")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
     parser.add_argument(
-        "--jobs", type=int, default=1,
+        "--jobs", type=positive_int, default=1,
         help="runs trained at once, one CPU thread each (2 on a 2-core machine: about half the wall-clock)",
     )  # fmt: skip
     parser.add_argument("--eval_episodes", type=int, default=100)
