@@ -50,35 +50,38 @@ def success_action_distribution(episode_actions: list[np.ndarray], successes: np
 
 def apportion(total: int, weights: np.ndarray, minimum_one: np.ndarray | None = None) -> np.ndarray:
     """Split ``total`` into integer counts ∝ ``weights`` (largest remainder). Where ``minimum_one`` is set, a
-    positive-weight class gets at least one sample when ``total`` allows it."""
+    positive-weight class that got none takes one from the largest class, when ``total`` allows it."""
     weights = np.asarray(weights, dtype=np.float64)
     counts = np.zeros(len(weights), dtype=np.int64)
     if total <= 0 or weights.sum() <= 0:
         return counts
-    if minimum_one is not None:
-        floor = minimum_one & (weights > 0)
-        if floor.sum() <= total:
-            counts[floor] = 1
-    remaining = total - counts.sum()
-    exact = weights / weights.sum() * remaining
+    exact = weights / weights.sum() * total
     counts += np.floor(exact).astype(np.int64)
-    short = total - counts.sum()
     order = np.argsort(-(exact - np.floor(exact)), kind="stable")
-    counts[order[:short]] += 1
+    counts[order[: total - counts.sum()]] += 1
+    if minimum_one is not None:
+        starved = np.flatnonzero(minimum_one & (weights > 0) & (counts == 0))
+        if len(starved) + np.count_nonzero(counts) <= total:
+            for cls in starved:
+                counts[np.argmax(counts)] -= 1
+                counts[cls] = 1
     return counts
 
 
-def sampling_counts(p_success: np.ndarray, pre_present: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+def sampling_counts(p_success: np.ndarray, pre_counts: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
     """How many transitions per action to take from successful runs and from pre-demonstrations.
 
     With r = Σ P(a|E): share r of ``size`` from successful runs, per action ∝ P(a|E); share 1 − r from
-    pre-demonstrations, per action ∝ 1 − P(a|E) over the actions present in I_pre ("inverse probability"),
-    every one of them kept (at least one sample) while r < 1."""
+    pre-demonstrations, per action ∝ n_pre(a) · (1 − P(a|E)) ("inverse probability" applied to I_pre's own action
+    frequencies, so that r = 0 gives I_pre's distribution — I_pre itself at size |I_pre| — also when I_pre is not
+    balanced; on a balanced I_pre this is the paper's ∝ 1 − P(a|E)). Every action present in I_pre is kept (at
+    least one sample) while r < 1."""
+    pre_counts = np.asarray(pre_counts)
     r = float(np.clip(p_success.sum(), 0.0, 1.0))
     n_success = int(round(r * size))
     from_success = apportion(n_success, p_success)
-    pre_weights = np.where(pre_present, 1.0 - p_success, 0.0)
-    from_pre = apportion(size - n_success, pre_weights, minimum_one=pre_present)
+    pre_weights = pre_counts * np.clip(1.0 - p_success, 0.0, None)
+    from_pre = apportion(size - n_success, pre_weights, minimum_one=pre_counts > 0)
     return from_success, from_pre
 
 
@@ -92,8 +95,8 @@ def build_sampled_set(
     """I^s by the sampling rule; a class with fewer transitions than its share is drawn with replacement.
     ``successful`` holds only transitions of rollouts that reached the goal."""
     n_actions = len(p_success)
-    pre_present = np.bincount(pre.actions, minlength=n_actions)[:n_actions] > 0
-    from_success, from_pre = sampling_counts(p_success, pre_present, size)
+    pre_counts = np.bincount(pre.actions, minlength=n_actions)[:n_actions]
+    from_success, from_pre = sampling_counts(p_success, pre_counts, size)
     picks = []
     for source, counts in ((successful, from_success), (pre, from_pre)):
         for action, count in enumerate(counts):

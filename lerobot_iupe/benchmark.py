@@ -8,6 +8,7 @@ stopped; the report (results.md/json, plots) is rebuilt from all records on ever
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -33,6 +34,7 @@ from lerobot.utils.random_utils import set_seed
 from lerobot_iupe.algorithm import performance
 from lerobot_iupe.dataset_utils import read_iupe_meta
 from lerobot_iupe.experts import reference_returns
+from lerobot_iupe.modeling_iupe import CYCLES_FILE
 
 BIN = Path(sys.executable).parent
 EVAL_SEED = 500_000  # evaluation seeds/layouts 500000…: never used by data (0…, 1000…) or rollouts (≥ 1e6)
@@ -80,12 +82,23 @@ class EnvPreset:
     def env_flags(self) -> list[str]:
         return [f"--env.{k}={v}" for k, v in self.env.items()]
 
+    @property
+    def eval_modes(self) -> tuple[str, ...]:
+        """Every maze checkpoint is evaluated both ways (an argmax policy that bumps into a wall stays put until
+        the step cap); vector policies by argmax."""
+        return ("argmax", "sample") if self.is_maze else ("argmax",)
+
+    def data_key(self, quick: bool) -> str:
+        """Short hash of everything that determines the datasets: a changed preset collects new ones."""
+        return digest([self.env, self.expert_episodes, self.random_episodes, self.random_flags, self.data_flags, quick])
+
+
+def digest(value) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True).encode()).hexdigest()[:10]
+
 
 VECTOR_TRAIN = ["--steps=400", "--batch_size=128", "--policy.cycle_steps=100"]
 MAZE_RANDOM = ["--random_start=true"]
-# An argmax policy that bumps into a wall stays put until the step cap: measured on Maze 3×3 (seed 0, 100 episodes),
-# IUPE scored AER −0.374 with argmax and 0.887 sampling from its softmax, BCO(α) 0.953 either way.
-MAZE_EVAL = ["--policy.eval_sampling=true"]
 # Mazes at 3 px per maze block (2N+1 blocks a side; 10×10 at 2 px) stored as PNG frames: the CNN's cost grows with
 # the pixel count (IDM step of 64 at 21 px 15 ms, at 63 px 61 ms); LeRobot's loader reads a PNG 8x faster than video.
 MAZE_DATA = ["--video=false"]
@@ -95,11 +108,11 @@ PRESETS = {
     "mountaincar": EnvPreset({"type": "mountaincar"}, 10, 100, ["--steps=1000", "--batch_size=128",
                              "--policy.cycle_steps=200", "--policy.optimizer_lr=1e-2"]),
     "maze3": EnvPreset({"type": "maze", "size": 3, "image_size": 21}, 100, 400, ["--steps=1000", "--batch_size=64",
-                       "--policy.cycle_steps=200", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=15"], MAZE_DATA),
+                       "--policy.cycle_steps=200"], MAZE_RANDOM + ["--env.max_steps=15"], MAZE_DATA),
     "maze5": EnvPreset({"type": "maze", "size": 5, "image_size": 33}, 100, 400, ["--steps=1500", "--batch_size=64",
-                       "--policy.cycle_steps=250", *MAZE_EVAL], MAZE_RANDOM + ["--env.max_steps=25"], MAZE_DATA),
+                       "--policy.cycle_steps=250"], MAZE_RANDOM + ["--env.max_steps=25"], MAZE_DATA),
     "maze10": EnvPreset({"type": "maze", "size": 10, "image_size": 42}, 100, 400, ["--steps=2000",
-                        "--batch_size=64", "--policy.cycle_steps=250", "--policy.idm_epochs=2", *MAZE_EVAL],
+                        "--batch_size=64", "--policy.cycle_steps=250", "--policy.idm_epochs=2"],
                         MAZE_RANDOM + ["--env.max_steps=60"], MAZE_DATA),
 }  # fmt: skip
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.
@@ -158,6 +171,7 @@ def collect_datasets(
 ) -> dict[str, Path]:
     """Expert (state only), the same expert episodes with actions (for BC), random pre-demonstrations."""
     paths = {}
+    name = f"{name}-{preset.data_key(quick)}"
     n_expert, n_random = (min(preset.expert_episodes, 5), min(preset.random_episodes, 60)) if quick else (
         preset.expert_episodes, preset.random_episodes)  # fmt: skip
     for kind, agent, episodes, extra in [
@@ -178,12 +192,16 @@ def collect_datasets(
 
 
 @torch.no_grad()
-def evaluate_checkpoint(checkpoint: Path, env_cfg: EnvConfig, episodes: int, seed: int = EVAL_SEED) -> dict:
-    """What lerobot-eval does (make_env, make_policy, LeRobot's processors, eval_policy_all), minus videos."""
+def evaluate_checkpoint(
+    checkpoint: Path, env_cfg: EnvConfig, episodes: int, eval_mode: str = "argmax", seed: int = EVAL_SEED
+) -> dict:
+    """What lerobot-eval does (make_env, make_policy, LeRobot's processors, eval_policy_all), minus videos;
+    ``eval_mode`` is ``--policy.eval_mode``."""
     set_seed(seed)
     policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
     policy_cfg.pretrained_path = checkpoint
     policy_cfg.device = "cpu"
+    policy_cfg.eval_mode = eval_mode
     envs = make_env(env_cfg, n_envs=min(episodes, 50), use_async_envs=False)
     policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg).eval()
     preprocessor, postprocessor = make_pre_post_processors(
@@ -201,24 +219,24 @@ def evaluate_checkpoint(checkpoint: Path, env_cfg: EnvConfig, episodes: int, see
 
 
 def evaluate_agent(agent: str, env_cfg: EnvConfig, episodes: int) -> dict:
+    """A built-in agent on the evaluation seeds (the same envs, seeds and layouts as ``evaluate_checkpoint``).
+    Not through eval_policy_all: the maze expert reads the simulator's state, which a LeRobot policy cannot."""
     returns = reference_returns(env_cfg, agent, episodes, seed=EVAL_SEED)
     return {"avg_sum_reward": float(returns.mean()), "pc_success": None}
 
 
-CYCLE_LINE = re.compile(r"IUPE cycle (\d+): success r=([\d.]+) return=(-?[\d.]+).*rollouts ([\d.]+)s IDM ([\d.]+)s")
 DATA_S = re.compile(r"data_s:([\d.]+)")
 
 
-def parse_training_log(output: str, steps: int) -> tuple[list[dict], dict]:
-    cycles = [
-        {"cycle": int(m[1]), "success_rate": float(m[2]), "return": float(m[3])} for m in CYCLE_LINE.finditer(output)
-    ]
-    last = list(CYCLE_LINE.finditer(output))
-    data_avg = [float(x) for x in DATA_S.findall(output)]
+def read_training_run(checkpoint: Path, output: str, steps: int) -> tuple[list[dict], dict]:
+    """The run's cycle records (``iupe_cycles.jsonl`` beside the checkpoint) and its time breakdown."""
+    path = checkpoint / CYCLES_FILE
+    cycles = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    data_avg = [float(x) for x in DATA_S.findall(output)]  # LeRobot's own per-step data-loading average
     timing = {
-        "rollouts_s": float(last[-1][4]) if last else 0.0,
-        "idm_s": float(last[-1][5]) if last else 0.0,
-        "data_loading_s": float(np.mean(data_avg)) * steps if data_avg else 0.0,  # LeRobot's per-step average
+        "rollouts_s": cycles[-1]["rollouts_s"] if cycles else 0.0,
+        "idm_s": cycles[-1]["idm_s"] if cycles else 0.0,
+        "data_loading_s": float(np.mean(data_avg)) * steps if data_avg else 0.0,
     }
     return cycles, timing
 
@@ -233,7 +251,17 @@ class Run:
     method: str
     seed: int | None
     data: dict[str, Path]
-    references: tuple[float, float]  # R_expert, R_random
+    references: dict[str | None, tuple[float, float]]  # eval layouts → (R_expert, R_random)
+    quick: bool = False
+
+    @property
+    def train_flags(self) -> list[str]:
+        return [*(QUICK_TRAIN if self.quick else self.preset.train), *method_flags(self.method)]
+
+    def config_key(self, eval_episodes: int) -> str:
+        """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
+        train = [] if self.method in ("expert", "random") else self.train_flags
+        return digest([self.preset.data_key(self.quick), train, eval_episodes, self.preset.eval_modes])
 
     @property
     def cost(self) -> float:
@@ -280,14 +308,22 @@ class Benchmark:
         with self.records_file.open("a") as f:
             f.write(json.dumps(record) + "\n")
 
-    def _done(self, table: str, env: str, method: str, seed: int | None) -> bool:
-        return any((r["table"], r["env"], r["method"], r["seed"]) == (table, env, method, seed) for r in self.records())
+    def _done(self, run: Run) -> bool:
+        key = (run.table, run.name, run.method, run.seed, run.config_key(self.eval_episodes))
+        return any((r["table"], r["env"], r["method"], r["seed"], r.get("config")) == key for r in self.records())
 
-    def references(self, name: str, preset: EnvPreset, data: dict[str, Path]) -> tuple[float, float]:
-        """R_expert: mean return of the expert demonstrations; R_random: uniform-random policy, 100 episodes."""
-        expert = read_iupe_meta(data["expert"])["mean_return"]
-        random = float(reference_returns(preset.env_config(), "random", 100).mean())
-        return expert, random
+    def references(self, preset: EnvPreset, data: dict[str, Path]) -> dict[str | None, tuple[float, float]]:
+        """Per evaluation layout set: R_expert = mean return of the expert demonstrations (held-out maze layouts:
+        of the expert on 100 of them), R_random = uniform-random policy, 100 episodes (seeds 100000…)."""
+        references = {}
+        for layouts in self.layouts(preset):
+            env_cfg = preset.env_config(layouts)
+            if layouts == "heldout":
+                expert = float(reference_returns(env_cfg, "expert", 100).mean())
+            else:
+                expert = read_iupe_meta(data["expert"])["mean_return"]
+            references[layouts] = (expert, float(reference_returns(env_cfg, "random", 100).mean()))
+        return references
 
     def layouts(self, preset: EnvPreset) -> list[str | None]:
         return ["demo", "heldout"] if preset.is_maze else [None]
@@ -299,26 +335,25 @@ class Benchmark:
         preset: EnvPreset,
         methods: list[str],
         seeds: list[int],
-        data_table: str = "",
         threads: int = 0,
     ) -> list[Run]:
-        """The unrecorded runs of ``methods`` × ``seeds`` on the datasets of ``data_table`` (default: ``table``),
-        collecting the datasets and measuring the references first."""
-        data = collect_datasets(f"{data_table or table}-{name}", preset, self.work / "data", self.quick, threads)
-        references = self.references(name, preset, data)
-        return [
-            Run(table, name, preset, method, seed, data, references)
+        """The unrecorded runs of ``methods`` × ``seeds`` (a run is recorded when a row with its table, env, method,
+        seed and configuration key exists), collecting the datasets and measuring the references first."""
+        data = collect_datasets(name, preset, self.work / "data", self.quick, threads)
+        references = self.references(preset, data)
+        runs = [
+            Run(table, name, preset, method, seed, data, references, self.quick)
             for method in methods
             for seed in ([None] if method in ("expert", "random") else seeds)
-            if not self._done(table, name, method, seed)
         ]
+        return [run for run in runs if not self._done(run)]
 
     def plan_all(self, requests: list[dict], jobs: int = 1) -> list[Run]:
         """``plan(**request)`` for each request, ``jobs`` datasets collected at a time; requests that share
         datasets are planned one after the other, so that no dataset is written twice at once."""
         by_data: dict[str, list[dict]] = {}
         for request in requests:
-            key = f"{request.get('data_table') or request['table']}-{request['name']}"
+            key = f"{request['name']}-{request['preset'].data_key(self.quick)}"
             by_data.setdefault(key, []).append(request)
         threads = 1 if jobs > 1 else 0
 
@@ -328,10 +363,8 @@ class Benchmark:
         with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
             return [run for runs in pool.map(plan_group, by_data.values()) for run in runs]
 
-    def run_env(
-        self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int], data_table: str = ""
-    ) -> None:
-        self.execute(self.plan(table, name, preset, methods, seeds, data_table))
+    def run_env(self, table: str, name: str, preset: EnvPreset, methods: list[str], seeds: list[int]) -> None:
+        self.execute(self.plan(table, name, preset, methods, seeds))
 
     def execute(self, runs: list[Run], jobs: int = 1) -> None:
         """Train and evaluate ``runs``, ``jobs`` at a time (one CPU thread each when ``jobs`` > 1)."""
@@ -358,12 +391,12 @@ class Benchmark:
         if run.method in ("expert", "random"):
             with self._lock:
                 evals = {
-                    lay: evaluate_agent(run.method, preset.env_config(lay), episodes) for lay in self.layouts(preset)
+                    (lay, None): evaluate_agent(run.method, preset.env_config(lay), episodes)
+                    for lay in self.layouts(preset)
                 }
         else:
             out = self.work / "runs" / run.table / run.name / f"{run.method}-s{run.seed}"
             shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
-            train = QUICK_TRAIN if self.quick else preset.train
             expert = run.data["expert-actions" if run.method == "bc" else "expert"]
             start = time.perf_counter()
             output = run_cli(
@@ -372,26 +405,29 @@ class Benchmark:
                 f"--policy.pre_demos_repo_id=local/{run.data['random'].name}",
                 f"--policy.pre_demos_root={run.data['random']}", f"--output_dir={out}", "--policy.device=cpu",
                 "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
-                f"--seed={run.seed}", f"--policy.seed={run.seed}", *train, *method_flags(run.method),
+                f"--seed={run.seed}", *run.train_flags,
                 log=out.with_suffix(".log"), echo=self.echo, threads=threads,
             )  # fmt: skip
             train_seconds = time.perf_counter() - start
-            cycles, timing = parse_training_log(output, train_steps(train))
+            cycles, timing = read_training_run(out / CHECKPOINT, output, train_steps(run.train_flags))
             evals = {}
             # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
             with self._lock:
                 for lay in self.layouts(preset):
-                    start = time.perf_counter()
-                    evals[lay] = evaluate_checkpoint(out / CHECKPOINT, preset.env_config(lay), episodes)
-                    timing[f"evaluation_{lay or 'env'}_s"] = time.perf_counter() - start
-        r_expert, r_random = run.references
+                    for mode in preset.eval_modes:
+                        start = time.perf_counter()
+                        env_cfg = preset.env_config(lay)
+                        evals[lay, mode] = evaluate_checkpoint(out / CHECKPOINT, env_cfg, episodes, mode)
+                        timing[f"evaluation_{lay or 'env'}_{mode}_s"] = time.perf_counter() - start
         with self._lock:
-            for lay, overall in evals.items():
+            for (lay, mode), overall in evals.items():
                 aer = overall["avg_sum_reward"]
+                r_expert, r_random = run.references[lay]
                 self._save(
                     {
                         "table": run.table, "env": run.name, "method": run.method, "seed": run.seed,
-                        "eval_layouts": lay, "P": performance([aer], r_expert, r_random), "AER": aer,
+                        "config": run.config_key(episodes), "eval_layouts": lay, "eval_mode": mode,
+                        "P": performance([aer], r_expert, r_random), "AER": aer,
                         "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
                         "train_seconds": train_seconds,
                         "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
@@ -420,14 +456,21 @@ def _cell(rows: list[dict]) -> str:
     return f"{p.mean():.3f} ± {p.std():.3f} / {aer.mean():.3f} ± {aer.std():.3f} (n={len(rows)})"
 
 
-def _table(records, table, envs, methods, layouts, paper=None) -> list[str]:
+def _rows(records: list[dict], mode: str | None, **match) -> list[dict]:
+    """Rows of a cell; trained methods under evaluation ``mode`` (the built-in agents have none)."""
+    if match.get("method") in ("expert", "random"):
+        return _group(records, **match)
+    return _group(records, eval_mode=mode, **match)
+
+
+def _table(records, table, envs, methods, layouts, mode, paper=None) -> list[str]:
     head = "| method | " + " | ".join(ENV_NAMES.get(e, e) for e in envs) + " |"
     lines = [head, "|---" * (len(envs) + 1) + "|"]
     for method in methods:
         cells = []
         for env in envs:
             lay = layouts(env)
-            cells.append(_cell(_group(records, table=table, env=env, method=method, eval_layouts=lay)))
+            cells.append(_cell(_rows(records, mode, table=table, env=env, method=method, eval_layouts=lay)))
         lines.append(f"| {METHOD_NAMES.get(method, method)} (ours) | " + " | ".join(cells) + " |")
         if paper and method in paper:
             ref = paper[method]
@@ -439,13 +482,24 @@ def _table(records, table, envs, methods, layouts, paper=None) -> list[str]:
     return lines
 
 
+def _first_rows(records: list[dict]) -> list[dict]:
+    """One row per training run (a run has a row per evaluation layout set and mode)."""
+    seen, rows = set(), []
+    for r in records:
+        key = (r["table"], r["env"], r["method"], r["seed"])
+        if key not in seen:
+            seen.add(key)
+            rows.append(r)
+    return rows
+
+
 def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path]:
     """results.md, results.json and the PNG plots from all records."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(records, indent=1) + "\n")
     envs1 = [e for e in PRESETS if _group(records, table="table1", env=e)]
     methods = ["expert", "random", "bc", "bco", "iupe"]
-    refs = {(r["table"], r["env"]): (r["R_expert"], r["R_random"]) for r in records}
+    refs = {(r["table"], r["env"], r["eval_layouts"]): (r["R_expert"], r["R_random"]) for r in records}
     lines = [
         "# Benchmark: the paper's Tables 1 and 2 on lerobot_iupe",
         "",
@@ -458,36 +512,54 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
         "",
         "Cells: P / AER, mean ± std over training seeds "
         "(expert and random rows: the built-in agents, one evaluation). Evaluation: "
-        f"{records[0]['eval_episodes'] if records else '?'} episodes on seeds {EVAL_SEED}… never used in training; "
-        "mazes on the demonstration layouts (the paper's protocol) and on held-out layouts.",
+        f"{records[0]['eval_episodes'] if records else '?'} episodes on seeds {EVAL_SEED}… never used in training "
+        "(mazes: 100 distinct layouts, the demonstration layouts — the paper's protocol — and held-out ones). "
+        "Every method of a table is evaluated under the same rule: `argmax` (the policy's most likely action) or "
+        "`sample` (a draw from its softmax), `--policy.eval_mode`; every maze checkpoint is evaluated both ways. "
+        "The expert and random rows play the built-in agents on the same envs, seeds and layouts with the "
+        "package's episode loop (the maze expert reads the simulator's state, which a LeRobot policy cannot).",
         "",
         "References (P = (R − R_random) / (R_expert − R_random)): R_expert = mean return of the expert "
-        "demonstrations, R_random = uniform-random policy over 100 episodes (seeds 100000…):",
+        "demonstrations (held-out maze layouts: of the expert on 100 of them), R_random = uniform-random policy "
+        "over 100 episodes (seeds 100000…) on the same layout set:",
         "",
-        *[f"- {t} {ENV_NAMES.get(e, e)}: R_expert {x:.3f}, R_random {y:.3f}" for (t, e), (x, y) in refs.items()],
-        "",
-        "## Table 1 (demonstration layouts for mazes)",
-        "",
-        *_table(records, "table1", envs1, methods, lambda e: "demo" if e.startswith("maze") else None, PAPER_TABLE1),
+        *[
+            f"- {t} {ENV_NAMES.get(e, e)}{f' ({lay} layouts)' if lay else ''}: R_expert {x:.3f}, R_random {y:.3f}"
+            for (t, e, lay), (x, y) in refs.items()
+        ],
     ]
     mazes = [e for e in envs1 if e.startswith("maze")]
+    demo_layouts = lambda e: "demo" if e.startswith("maze") else None  # noqa: E731
+    lines += ["", "## Table 1, argmax evaluation (demonstration layouts for mazes)", ""]
+    lines += _table(records, "table1", envs1, methods, demo_layouts, "argmax", PAPER_TABLE1)
     if mazes:
-        lines += ["", "## Table 1, mazes on held-out layouts (not measured in the paper)", ""]
-        lines += _table(records, "table1", mazes, methods, lambda e: "heldout")
+        lines += ["", "## Table 1, mazes, sampled evaluation (demonstration layouts)", ""]
+        lines += _table(records, "table1", mazes, methods, demo_layouts, "sample", PAPER_TABLE1)
+        for mode in ("argmax", "sample"):
+            lines += ["", f"## Table 1, mazes on held-out layouts, {mode} evaluation (not measured in the paper)", ""]
+            lines += _table(records, "table1", mazes, methods, lambda e: "heldout", mode)
     if _group(records, table="ablation"):
         lines += ["", "## Table 2: ablation on Maze 10×10 (S = sampling, E = exploration, A = attention on)", ""]
-        lines += ["| variant | ours, demo layouts | ours, held-out layouts | paper |", "|---|---|---|---|"]
+        lines += [
+            "| variant | demo layouts, argmax | demo layouts, sample | held-out, argmax | held-out, sample | paper |",
+            "|---|---|---|---|---|---|",
+        ]
         for variant in ABLATION:
             table = "table1" if variant in ("bco", "iupe") else "ablation"  # the same runs as Table 1's Maze 10×10
-            demo = _cell(_group(records, table=table, env="maze10", method=variant, eval_layouts="demo"))
-            held = _cell(_group(records, table=table, env="maze10", method=variant, eval_layouts="heldout"))
+            cells = [
+                _cell(_group(records, table=table, env="maze10", method=variant, eval_layouts=lay, eval_mode=mode))
+                for lay in ("demo", "heldout")
+                for mode in ("argmax", "sample")
+            ]
             ref = PAPER_TABLE2[variant]
-            lines.append(f"| {METHOD_NAMES.get(variant, variant)} | {demo} | {held} | {ref[0]:.3f} / {ref[1]:.3f} |")
+            lines.append(
+                f"| {METHOD_NAMES.get(variant, variant)} | {' | '.join(cells)} | {ref[0]:.3f} / {ref[1]:.3f} |"
+            )
         lines += ["", "BCO(α) and IUPE rows: Table 1's Maze 10×10 runs (same datasets, preset and seeds)."]
     low = [e for e in LOW_DATA if _group(records, table="lowdata", env=e)]
     if low:
-        lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions", ""]
-        lines += _table(records, "lowdata", low, ["bco", "S", "E", "SE", "iupe"], lambda e: None)
+        lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions (argmax evaluation)", ""]
+        lines += _table(records, "lowdata", low, ["bco", "S", "E", "SE", "iupe"], lambda e: None, "argmax")
     lines += ["", "## Where the time goes (mean seconds per training run)", ""]
     lines += [
         "| table | env | method | runs | train (wall) | rollouts | IDM training | data loading | PM + other | eval |",
@@ -496,7 +568,7 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
     trained = [r for r in records if r["seed"] is not None]
     keys = sorted({(r["table"], r["env"], r["method"]) for r in trained}, key=str)
     for table, env, method in keys:
-        rows = [r for r in _group(trained, table=table, env=env, method=method) if r["eval_layouts"] != "heldout"]
+        rows = _first_rows(_group(trained, table=table, env=env, method=method))
         mean = lambda k, rows=rows: float(np.mean([r["timing"].get(k, 0.0) for r in rows]))  # noqa: E731
         train = float(np.mean([r["train_seconds"] for r in rows]))
         evals = float(np.mean([sum(v for k, v in r["timing"].items() if k.startswith("evaluation")) for r in rows]))
@@ -507,7 +579,7 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             f"| {evals:.1f} |"
         )
     for table in sorted({r["table"] for r in trained}):
-        rows = [r for r in trained if r["table"] == table and r["eval_layouts"] != "heldout"]
+        rows = _first_rows(_group(trained, table=table))
         train = sum(r["train_seconds"] for r in rows)
         evals = sum(sum(v for k, v in r["timing"].items() if k.startswith("evaluation")) for r in rows)
         lines += ["", f"{table}: {len(rows)} training runs, training {train / 60:.1f} min + evaluation "
@@ -528,7 +600,7 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     paths = []
-    curves = [r for r in records if r["cycles"] and r["eval_layouts"] != "heldout"]
+    curves = _first_rows([r for r in records if r["cycles"]])
     groups = sorted({(r["table"], r["env"]) for r in curves}, key=str)
     if groups:
         fig, axes = plt.subplots(2, len(groups), figsize=(4 * len(groups), 6), squeeze=False)
@@ -553,7 +625,11 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
         paths.append(out / "cycles.png")
         fig.savefig(paths[-1], dpi=90)
         plt.close(fig)
-    table1 = [r for r in records if r["table"] == "table1" and r["eval_layouts"] in (None, "demo")]
+    table1 = [
+        r
+        for r in records
+        if r["table"] == "table1" and r["eval_layouts"] in (None, "demo") and r.get("eval_mode") in (None, "argmax")
+    ]
     envs = [e for e in PRESETS if _group(table1, env=e)]
     if envs:
         methods = ["bc", "bco", "iupe"]

@@ -8,6 +8,8 @@ from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTr
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
+EVAL_MODES = ("argmax", "sample")
+
 
 @PreTrainedConfig.register_subclass("iupe")
 @dataclass
@@ -23,9 +25,9 @@ class IUPEConfig(PreTrainedConfig):
     exploration: bool = True
     attention: bool = True
     supervised: bool = False
-    # Exploration is a training mechanism (IDM labels and rollouts); select_action (lerobot-eval) takes the
-    # policy's argmax unless this is set, in which case an exploring policy keeps sampling from its softmax.
-    eval_sampling: bool = False
+    # How select_action (lerobot-eval) acts, whatever the training switches: "argmax" (the policy's most likely
+    # action) or "sample" (a draw from its softmax). Exploration is a training mechanism only.
+    eval_mode: str = "argmax"
     # Number of discrete actions; 0 = read from the pre-demonstrations (or the env).
     n_actions: int = 0
     # Environment of the rollouts; None = the one recorded in the expert dataset's meta/iupe.json.
@@ -46,11 +48,13 @@ class IUPEConfig(PreTrainedConfig):
     cnn_width: int = 16
     # Image encoder: "cnn" (compact residual CNN, CPU-sized at 64 px) or "resnet18" (torchvision, for GPU runs).
     image_backbone: str = "cnn"
-    # CPU threads for torch; 0 = 1 thread for vector states (tiny networks run several times faster without
-    # intra-op threading) and torch's default for images.
+    # CPU threads for torch while training (set when training starts, not when a policy is built, so evaluation
+    # and relabelling in the same process keep theirs); 0 = 1 thread for vector states (tiny networks run several
+    # times faster without intra-op threading) and torch's default for images.
     torch_threads: int = 0
     optimizer_lr: float = 1e-3
-    seed: int = 0
+    # Seed of IUPE's own random streams (rollout seeds, I^s draws, label draws); None = lerobot-train's --seed.
+    seed: int | None = None
     push_to_hub: bool = False
 
     normalization_mapping: dict[str, NormalizationMode] = field(
@@ -67,6 +71,8 @@ class IUPEConfig(PreTrainedConfig):
         super().__post_init__()
         if self.cycle_steps <= 0 or self.rollout_episodes <= 0:
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
+        if self.eval_mode not in EVAL_MODES:
+            raise ValueError(f"--policy.eval_mode must be one of {list(EVAL_MODES)}, got {self.eval_mode!r}")
 
     # No delta_timestamps: the policy reads s_{t+1} (and, supervised, the action) from its in-memory copy of the
     # expert dataset by each batch frame's index — LeRobot's per-item delta queries cost 12× more.

@@ -3,6 +3,8 @@ write-new-then-swap so that an existing dataset is never left half-written or da
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import json
 import os
 import shutil
@@ -48,10 +50,11 @@ def check_writable(root: Path, overwrite: bool, flag: str = "--dataset.root") ->
 def staged_directory(final: Path, overwrite: bool) -> Iterator[Path]:
     """Yield a fresh sibling directory to build into; on success swap it in for ``final``.
 
-    On any exception the staged directory is removed and ``final`` is untouched. The swap is two renames on
-    the same filesystem, so a process killed at any moment leaves the old or the new dataset at ``final`` —
-    or, killed between the two renames, only the hidden old copy — plus hidden siblings named after the dead
-    process, which the next run on ``final`` (``recover_interrupted_swap``) puts back or removes."""
+    On any exception the staged directory is removed and ``final`` is untouched. The swap is one atomic exchange
+    of the two directories where Linux offers it, so a process killed at any moment leaves the old or the new
+    dataset at ``final``; elsewhere it is two renames, and a kill between them leaves only the hidden old copy.
+    Hidden siblings named after the dead process are put back or removed by the next run on ``final``
+    (``recover_interrupted_swap``)."""
     recover_interrupted_swap(final)
     check_writable(final, overwrite)
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -62,11 +65,35 @@ def staged_directory(final: Path, overwrite: bool) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(staged, ignore_errors=True)
         raise
+    if final.exists() and exchange_paths(staged, final):
+        shutil.rmtree(staged, ignore_errors=True)  # it now holds the old dataset
+        return
     backup = final.parent / f".{final.name}.old-{token}"
     if final.exists():
         os.rename(final, backup)
     os.rename(staged, final)
     shutil.rmtree(backup, ignore_errors=True)
+
+
+_RENAME_EXCHANGE = 2  # linux/fs.h
+
+
+def exchange_paths(a: Path, b: Path) -> bool:
+    """Swap two paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``); False where the OS or the
+    filesystem cannot, and the caller falls back to two renames. Python's os module has no binding for it."""
+    if not sys.platform.startswith("linux"):
+        return False
+    libc = ctypes.CDLL(None, use_errno=True)
+    if not hasattr(libc, "renameat2"):
+        return False
+    at_fdcwd = -100
+    result = libc.renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), _RENAME_EXCHANGE)
+    if result == 0:
+        return True
+    error = ctypes.get_errno()
+    if error in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(error, f"cannot swap {a} and {b}: {os.strerror(error)}")
 
 
 def _pid_alive(pid: int) -> bool:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+from importlib import resources
 from pathlib import Path
 
 from huggingface_hub import DatasetCard, DatasetCardData, HfApi, constants
@@ -14,7 +15,8 @@ from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
 from lerobot_iupe.dataset_utils import CommandError, read_iupe_meta
 
-CARD_TEMPLATE = Path(__file__).resolve().parents[1] / "datasets_cards" / "iupe_demonstrations.md"
+# Package data (datasets_cards/ at the repository's top level links to it), so a wheel install can push.
+CARD_TEMPLATE = resources.files("lerobot_iupe") / "assets" / "iupe_demonstrations.md"
 CARD_TAGS = ["LeRobot", "imitation-from-observation", "iupe"]
 AGENT_DESCRIPTIONS = {
     "expert": "the package's built-in expert",

@@ -8,13 +8,17 @@ How the algorithm maps onto LeRobot's training loop (one optimizer step = one PM
 - every ``cycle_steps`` steps (``update()``): roll out the PM for ``rollout_episodes`` episodes, record
   (s_t, a_t, s_{t+1}) of the same step and whether the goal was reached, select the model by goal success,
   rebuild I^s by the sampling rule and retrain the IDM on it.
-The checkpoint LeRobot saves holds the *selected* model (best rollout success, latest on ties). A resumed run
-restores that model and LeRobot's optimizer state; I^s is rebuilt from I_pre and the cycles go on from there.
+The checkpoint LeRobot saves holds the *selected* model (best rollout success, latest on ties) as its weights, and
+beside them (``iupe_training_state.pt``) what the algorithm needs to go on exactly where it stopped: step, cycle,
+best success, the random streams, the IDM's optimizer and the latest weights (which LeRobot's optimizer state
+belongs to); ``iupe_cycles.jsonl`` lists every cycle's measurements. Training from such a checkpoint
+(``--resume=true`` or ``--policy.path``) continues from that state.
 """
 
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import time
 from pathlib import Path
@@ -39,6 +43,8 @@ from lerobot_iupe.dataset_utils import read_iupe_meta
 from lerobot_iupe.frames import column_array, stored_frames, video_chunks
 
 log = logging.getLogger("lerobot_iupe")
+TRAINING_STATE_FILE = "iupe_training_state.pt"
+CYCLES_FILE = "iupe_cycles.jsonl"
 
 
 # ---------------------------------------------------------------- networks
@@ -224,9 +230,9 @@ class IUPEPolicy(PreTrainedPolicy):
         self.is_image = config.observation_key == OBS_IMAGE
         config.idm_epochs = config.idm_epochs or (5 if self.is_image else 2)
         config.idm_batch_size = config.idm_batch_size or (64 if self.is_image else 256)
-        threads = config.torch_threads or (0 if self.is_image else 1)
-        if threads:
-            torch.set_num_threads(threads)
+        # lerobot-train seeds torch with its --seed just before building the policy: that seed drives IUPE's own
+        # streams unless --policy.seed is given.
+        self.seed = config.seed if config.seed is not None else torch.initial_seed() % 2**62
         if dataset_meta is not None and config.env_settings is None:
             config.env_settings = read_iupe_meta(dataset_meta.root).get("env")
         if config.n_actions == 0:
@@ -260,7 +266,9 @@ class IUPEPolicy(PreTrainedPolicy):
         self._expert: ExpertFrames | None = None  # the expert dataset, loaded by the first training step
         self._training_state: dict | None = None
         self._selected_state: dict | None = None
+        self._rollout_layouts: list[int] = []  # maze: the expert dataset's layout ids, cycled through by rollouts
         self.cycle_stats: dict[str, float] = {}
+        self.cycles: list[dict] = []  # one record per cycle, saved as iupe_cycles.jsonl beside the checkpoint
         if dataset_meta is not None and config.supervised and ACTION not in dataset_meta.features:
             raise ValueError(
                 f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
@@ -300,10 +308,10 @@ class IUPEPolicy(PreTrainedPolicy):
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """Action of the policy model as a float action id of shape (B, 1): the argmax, or a draw from its softmax
-        when ``exploration`` and ``eval_sampling`` are both on. Training rollouts sample on their own."""
+        with ``eval_mode="sample"`` (whatever the training switches). Training rollouts sample on their own."""
         obs = batch[self.config.observation_key]
-        explore = self.config.exploration and self.config.eval_sampling
-        return choose_actions(self.pm_logits(obs), explore).unsqueeze(-1).float()
+        sample = self.config.eval_mode == "sample"
+        return choose_actions(self.pm_logits(obs), sample).unsqueeze(-1).float()
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """One PM step on the batch's frames: s_t and s_{t+1} come from the in-memory expert data by the batch's
@@ -318,8 +326,11 @@ class IUPEPolicy(PreTrainedPolicy):
         else:
             if self._training_state is None:
                 self._start_training()
+            was_training = self.training
+            self.eval()  # labels from the IDM in eval mode: batch-norm layers (ResNet-18) keep their statistics
             with torch.no_grad():
                 idm_logits = self.idm_logits(state, next_state)
+            self.train(was_training)
             labels = choose_actions(idm_logits, self.config.exploration, self._training_state["torch_rng"])
             self.cycle_stats["label_non_map"] = float((labels != idm_logits.argmax(-1)).float().mean())
         logits = self.pm_logits(state)
@@ -344,10 +355,30 @@ class IUPEPolicy(PreTrainedPolicy):
             self._end_cycle()
 
     def _save_pretrained(self, save_directory: Path, state_dict: dict[str, Tensor] | None = None) -> None:
-        """Save the model selected by rollout success (the current one before any rollout)."""
+        """Save the model selected by rollout success (the current one before any rollout), and beside it the
+        algorithm's state and its cycle records."""
         if state_dict is None and self._selected_state is not None:
             state_dict = self._selected_state
         super()._save_pretrained(save_directory, state_dict)
+        state = self._training_state
+        if state is None:
+            return
+        torch.save(
+            {
+                "step": state["step"],
+                "cycle": state["cycle"],
+                "best_success": state["best_success"],
+                "seed": self.seed,
+                "rng": state["rng"].bit_generator.state,
+                "torch_rng": None if state["torch_rng"] is None else state["torch_rng"].get_state(),
+                "idm_optimizer": state["idm_optimizer"].state_dict(),
+                "latest_weights": self.state_dict(),
+                "seconds": state["seconds"],
+                "cycles": self.cycles,
+            },
+            Path(save_directory) / TRAINING_STATE_FILE,
+        )
+        (Path(save_directory) / CYCLES_FILE).write_text("".join(json.dumps(c) + "\n" for c in self.cycles))
 
     # ------------------------------------------------------------ the algorithm
 
@@ -397,6 +428,7 @@ class IUPEPolicy(PreTrainedPolicy):
                 )
         self._pre_dataset = pre
         self._env_cfg = env_cfg
+        self._rollout_layouts = [int(i) for i in read_iupe_meta(dataset_meta.root).get("layout_ids", [])]
 
     def _device(self) -> torch.device:
         return self.pm_head.weight.device
@@ -407,29 +439,51 @@ class IUPEPolicy(PreTrainedPolicy):
             if self._dataset_meta is None:
                 raise RuntimeError("IUPE training needs the expert dataset's metadata")
             self._check_training_inputs(self._dataset_meta)
+        threads = cfg.torch_threads or (0 if self.is_image else 1)
+        if threads:
+            torch.set_num_threads(threads)
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
         pre = load_transitions(self._pre_dataset, cfg.observation_key)
         size = cfg.sampled_set_size or len(pre)
-        self._training_state = {
+        self._training_state = state = {
             "step": 0,
             "cycle": 0,
             "rank": rank,
             "pre": pre,
             "size": size,
-            "rng": np.random.default_rng([cfg.seed, rank]),
-            "torch_rng": torch.Generator(device="cpu").manual_seed(cfg.seed * 1000 + rank),
+            "rng": np.random.default_rng([self.seed, rank]),
+            "torch_rng": torch.Generator(device="cpu").manual_seed((self.seed * 1000 + rank) % 2**63),
             "idm_optimizer": torch.optim.Adam(
                 list(self.idm_encoder.parameters()) + list(self.idm_head.parameters()), lr=cfg.idm_lr
             ),
             "best_success": -1.0,
             "seconds": {"rollouts": 0.0, "idm": 0.0},  # cumulative, for the benchmark's time breakdown
         }
-        if self._training_state["torch_rng"].device != self._device():
-            self._training_state["torch_rng"] = None  # multinomial on another device: use the global generator
+        if state["torch_rng"].device != self._device():
+            state["torch_rng"] = None  # multinomial on another device: use the global generator
         log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self._env_cfg.type}")
+        saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path else None
+        if saved is not None and saved.exists():
+            self._restore_training_state(torch.load(saved, map_location=self._device(), weights_only=False))
+            log.info(f"IUPE: continuing from cycle {state['cycle']} (step {state['step']}) of {saved.parent}")
+            return
         start = time.perf_counter()
         self._train_idm(pre)
-        self._training_state["seconds"]["idm"] += time.perf_counter() - start
+        state["seconds"]["idm"] += time.perf_counter() - start
+
+    def _restore_training_state(self, saved: dict) -> None:
+        """Go on where the saved run stopped: the loaded weights are its selected model; the current model becomes
+        its latest one (LeRobot's restored optimizer state belongs to those)."""
+        state = self._training_state
+        self._selected_state = copy.deepcopy(self.state_dict())
+        self.load_state_dict(saved["latest_weights"])
+        self.seed = saved["seed"]
+        state.update({k: saved[k] for k in ("step", "cycle", "best_success", "seconds")})
+        state["rng"].bit_generator.state = saved["rng"]
+        if state["torch_rng"] is not None and saved["torch_rng"] is not None:
+            state["torch_rng"].set_state(saved["torch_rng"])
+        state["idm_optimizer"].load_state_dict(saved["idm_optimizer"])
+        self.cycles = list(saved["cycles"])
 
     def _train_idm(self, data: Transitions) -> None:
         """Train the IDM on I^s (90%) and measure its accuracy on the held-out 10%."""
@@ -449,6 +503,8 @@ class IUPEPolicy(PreTrainedPolicy):
                 state["idm_optimizer"].zero_grad()
                 loss.backward()
                 state["idm_optimizer"].step()
+        # lerobot-train clips (and logs) the norm of every parameter's gradient: only the PM's may be left.
+        state["idm_optimizer"].zero_grad(set_to_none=True)
         self.eval()
         with torch.no_grad():
             correct = 0
@@ -467,7 +523,13 @@ class IUPEPolicy(PreTrainedPolicy):
             self._rollout_envs.append(env_cfg.make())
         envs = self._rollout_envs[:episodes]
         key = "pixels" if self.is_image else "agent_pos"
-        observations = [env.reset(seed=seed + i)[0][key] for i, env in enumerate(envs)]
+        layouts = self._rollout_layouts
+        observations = [
+            env.reset(seed=seed + i, options={"layout_id": layouts[(seed + i) % len(layouts)]} if layouts else None)[0][
+                key
+            ]
+            for i, env in enumerate(envs)
+        ]
         records = [([], [], []) for _ in envs]
         successes, returns = np.zeros(episodes, dtype=bool), np.zeros(episodes)
         active = list(range(episodes))
@@ -505,18 +567,19 @@ class IUPEPolicy(PreTrainedPolicy):
     def _end_cycle(self) -> None:
         cfg, state = self.config, self._training_state
         state["cycle"] += 1
-        seed = 1_000_000 * (1 + state["rank"]) + cfg.seed * 100_003 + state["cycle"] * cfg.rollout_episodes
+        seed = 1_000_000 * (1 + state["rank"]) + self.seed * 100_003 + state["cycle"] * cfg.rollout_episodes
         start = time.perf_counter()
         episodes, successes, returns = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
         state["seconds"]["rollouts"] += time.perf_counter() - start
         success_rate = float(successes.mean())
-        if success_rate >= state["best_success"]:
+        selected = success_rate >= state["best_success"]
+        if selected:
             state["best_success"] = success_rate
             self._selected_state = copy.deepcopy(self.state_dict())
         pre = state["pre"]
+        good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
         if cfg.sampling:
             p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
-            good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
             successful = Transitions.concat(good) if good else pre.take(np.arange(0))
             sampled = build_sampled_set(pre, successful, p_success, state["size"], state["rng"])
         else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
@@ -525,6 +588,23 @@ class IUPEPolicy(PreTrainedPolicy):
         self._train_idm(sampled)
         state["seconds"]["idm"] += time.perf_counter() - start
         self.cycle_stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
+        self.cycles.append(
+            {
+                "cycle": state["cycle"],
+                "step": state["step"],
+                "rollout_seed": seed,
+                "success_rate": success_rate,
+                "return": float(returns.mean()),
+                "selected": selected,
+                "best_success": state["best_success"],
+                "sampled_set_size": len(sampled),
+                "successful_transitions": int(sum(len(e) for e in good)),
+                "idm_accuracy": self.cycle_stats["idm_accuracy"],
+                "label_non_map": self.cycle_stats.get("label_non_map", 0.0),
+                "rollouts_s": state["seconds"]["rollouts"],
+                "idm_s": state["seconds"]["idm"],
+            }
+        )
         log.info(
             f"IUPE cycle {state['cycle']}: success r={success_rate:.2f} return={returns.mean():.1f} "
             f"IDM acc={self.cycle_stats['idm_accuracy']:.3f} "

@@ -33,11 +33,11 @@ def main() -> None:
     calls = bench.log_call(f"python scripts/demo.py --env {args.env}", time.perf_counter() - start)
     records = bench.records()
     write_report(records, out, calls)
-    print("\n| method | env | eval layouts | P | AER | success | train s |")
-    print("|---|---|---|---|---|---|---|")
+    print("\n| method | env | eval layouts | eval mode | P | AER | success | train s |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in records:
         print(
-            f"| IUPE | {r['env']} | {r['eval_layouts'] or '–'} | {r['P']:.3f} | {r['AER']:.3f} "
+            f"| IUPE | {r['env']} | {r['eval_layouts'] or '–'} | {r['eval_mode']} | {r['P']:.3f} | {r['AER']:.3f} "
             f"| {r['success_rate']:.0%} | {r['train_seconds']:.0f} |"
         )
     print(f"references: expert {records[0]['R_expert']:.3f} (demonstrations), random {records[0]['R_random']:.3f}")

@@ -39,10 +39,19 @@ def test_eq1_uses_successful_runs_only_and_sums_to_r():
     assert p.sum() == pytest.approx(2 / 3)
 
 
-def test_r_zero_gives_only_pre_demonstrations(pre, successful):
-    sampled = build_sampled_set(pre, successful, np.zeros(N_ACTIONS), 300, np.random.default_rng(0))
-    assert len(sampled) == 300 and np.all(sampled.states[:, 0] == 0.0)
-    assert np.bincount(sampled.actions).tolist() == [100, 100, 100]
+def test_r_zero_gives_exactly_the_pre_demonstrations_even_when_unbalanced(successful):
+    unbalanced = make_transitions([0] * 200 + [1] * 60 + [2] * 40, tag=0.0)
+    sampled = build_sampled_set(unbalanced, successful, np.zeros(N_ACTIONS), 300, np.random.default_rng(0))
+    assert np.all(sampled.states[:, 0] == 0.0)
+    # I^s = I_pre: every pre-demonstration transition once (not a rebalanced draw)
+    assert sorted(map(tuple, sampled.states)) == sorted(map(tuple, unbalanced.states))
+
+
+def test_pre_share_is_inverse_probability_times_pre_frequency():
+    # r = 0.5 all on action 0: pre weights 200·0.5, 60·1, 40·1 → 100 : 60 : 40 of the other 500
+    from_success, from_pre = sampling_counts(np.array([0.5, 0.0, 0.0]), np.array([200, 60, 40]), 1000)
+    assert from_success.tolist() == [500, 0, 0]
+    assert from_pre.tolist() == [250, 150, 100]
 
 
 def test_r_one_gives_only_successful_transitions(pre, successful):
@@ -68,15 +77,15 @@ def test_mixed_shares_follow_eq1_and_inverse_probability(pre, successful, size):
 
 
 def test_every_pre_action_survives_while_r_below_one():
-    from_success, from_pre = sampling_counts(np.array([0.9, 0.0, 0.0]), np.array([True, True, True]), 100)
+    from_success, from_pre = sampling_counts(np.array([0.9, 0.0, 0.0]), np.array([100, 100, 100]), 100)
     assert from_success.tolist() == [90, 0, 0]
     assert (from_pre >= 1).all() and from_pre.sum() == 10
-    _, from_pre = sampling_counts(np.array([0.5, 0.49, 0.0]), np.array([True, True, True]), 1000)
+    _, from_pre = sampling_counts(np.array([0.5, 0.49, 0.0]), np.array([100, 100, 100]), 1000)
     assert (from_pre >= 1).all() and from_pre.sum() == 10
 
 
 def test_actions_absent_from_pre_demonstrations_get_no_share():
-    _, from_pre = sampling_counts(np.zeros(3), np.array([True, False, True]), 10)
+    _, from_pre = sampling_counts(np.zeros(3), np.array([5, 0, 5]), 10)
     assert from_pre.tolist() == [5, 0, 5]
 
 

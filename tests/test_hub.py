@@ -1,6 +1,9 @@
 import os
+import shutil
 import subprocess
 import sys
+import sysconfig
+from pathlib import Path
 
 import pytest
 from conftest import run_cli
@@ -79,3 +82,45 @@ def test_collect_with_push_to_hub(tmp_path):
 def test_push_of_a_non_dataset_is_refused(tmp_path):
     result = run_cli("lerobot-iupe-push", f"--dataset.root={tmp_path}", "--dataset.repo_id=me/x", check=False)
     assert result.returncode == 2 and "is not a LeRobot dataset" in result.stderr
+
+
+def test_push_works_from_a_wheel_installed_in_a_fresh_venv(cartpole_expert, tmp_path):
+    """The card template ships inside the wheel: a normal (non-editable) install can push."""
+    repo = Path(__file__).resolve().parents[1]
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md", "lerobot_policy_iupe.py"):
+        shutil.copy(repo / name, source / name)
+    shutil.copytree(repo / "lerobot_iupe", source / "lerobot_iupe", ignore=shutil.ignore_patterns("__pycache__"))
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", tmp_path / "wheels", source], check=True)
+    venv = tmp_path / "fresh"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", venv], check=True)
+    site = venv / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+    wheel = next((tmp_path / "wheels").glob("lerobot_policy_iupe-*.whl"))
+    subprocess.run([*pip, "install", "--no-deps", "--target", site, wheel], check=True)
+    # dependencies (lerobot, torch, …) from the test venv; its editable install of this package is not seen
+    (site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    code = (
+        "import sys, lerobot_iupe; print('PACKAGE', lerobot_iupe.__file__);"
+        "from lerobot_iupe.scripts.push import main; sys.argv[1:] = sys.argv[2:]; main()"
+    )
+    with LocalHub() as hub:
+        result = subprocess.run(
+            [
+                venv / "bin" / "python",
+                "-c",
+                code,
+                "push",
+                f"--dataset.root={cartpole_expert}",
+                "--dataset.repo_id=me/w",
+            ],
+            cwd=tmp_path,
+            env={**os.environ, **hub_env(hub.url, tmp_path)},
+            capture_output=True,
+            text=True,
+        )
+        assert result.returncode == 0, result.stderr[-3000:]
+        assert f"PACKAGE {site}" in result.stdout
+        card = hub.repos["me/w"].snapshots[hub.repos["me/w"].tags["v3.0"]]["README.md"].decode()
+        assert "imitation-from-observation" in card

@@ -78,14 +78,15 @@ def test_resnet18_backbone_builds_and_runs():
     assert policy.pm_encoder.attention1.gamma.item() == 0.0
 
 
-def test_select_action_is_argmax_unless_eval_sampling():
+@pytest.mark.parametrize("exploration", [False, True])
+def test_select_action_follows_eval_mode_whatever_the_training_switches(exploration):
     obs = {"observation.state": torch.randn(256, 4)}
-    greedy = make_policy(image=False)
+    greedy = make_policy(image=False, exploration=exploration)
     with torch.no_grad():
         greedy.pm_head.weight.mul_(0)  # uniform-ish logits: sampling would disagree with the argmax often
         argmax = greedy.pm_logits(obs["observation.state"]).argmax(-1).float()
     assert torch.equal(greedy.select_action(obs)[:, 0], argmax)
-    sampling = make_policy(image=False, eval_sampling=True)
+    sampling = make_policy(image=False, exploration=not exploration, eval_mode="sample")
     sampling.load_state_dict(greedy.state_dict())
     torch.manual_seed(0)
     assert not torch.equal(sampling.select_action(obs)[:, 0], argmax)

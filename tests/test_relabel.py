@@ -3,14 +3,14 @@
 import errno
 import hashlib
 import json
-import os
 import signal
 import subprocess
+import sys
 import time
 
 import numpy as np
 import pytest
-from conftest import BIN, CHECKPOINT, evaluate, run_cli, train_args
+from conftest import CHECKPOINT, evaluate, run_cli, train_args
 from hub_server import LocalHub
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
@@ -196,19 +196,22 @@ def test_a_failure_while_writing_keeps_the_original(cartpole_run, data_dir, monk
     assert tree_digest(stripped) == before and hidden_siblings(stripped) == []
 
 
-def test_kill_9_mid_write_loses_nothing(maze_run, maze_random, data_dir, tmp_path):
+def test_kill_9_after_the_copy_is_written_loses_nothing(maze_run, maze_random, data_dir, tmp_path):
+    """A real SIGKILL once the relabelled copy is complete, just before it is swapped in (every step of the swap
+    itself is killed in test_swap.py)."""
     root = tmp_path / "maze-random"
     subprocess.run(["cp", "-r", str(maze_random), str(root)], check=True)
     before = tree_digest(root)
     args = relabel_args(maze_run / CHECKPOINT, root, "--overwrite=true", "--video_backend=pyav")
-    process = subprocess.Popen([str(BIN / "lerobot-iupe-relabel"), *args], stdout=subprocess.DEVNULL)
-    deadline = time.monotonic() + 300
-    while not hidden_siblings(root) and process.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.002)
-    staged_seen = hidden_siblings(root)
-    os.kill(process.pid, signal.SIGKILL)
-    assert process.wait() == -signal.SIGKILL
-    assert staged_seen, "the relabel run ended before its staged copy could be observed"
+    code = (
+        "import os, signal, sys; from lerobot_iupe import dataset_utils;"
+        "dataset_utils.exchange_paths = lambda *a: os.kill(os.getpid(), signal.SIGKILL);"
+        "from lerobot_iupe.scripts.relabel import main; sys.argv[1:] = sys.argv[2:]; main()"
+    )
+    process = subprocess.run([sys.executable, "-c", code, "relabel", *args], capture_output=True, text=True)
+    assert process.returncode == -signal.SIGKILL, process.stderr[-3000:]
+    staged = hidden_siblings(root)
+    assert len(staged) == 1 and (staged[0] / "meta" / "info.json").exists()  # the copy was complete
     assert tree_digest(root) == before
     LeRobotDataset("local/maze-random", root=root, video_backend="pyav")[0]
     run_cli("lerobot-iupe-relabel", *args)  # the next run cleans up the dead run's staged copy

@@ -3,7 +3,8 @@
 Layouts: a perfect maze carved by a recursive backtracker (iterative, seeded by the layout id and the size),
 plus ``max(1, round(0.1 * N * N))`` extra openings that add loops. Same (size, layout id) → same maze.
 Layout ids ``[0, HELDOUT_LAYOUT_START)`` are demonstration layouts; ids from ``HELDOUT_LAYOUT_START`` on are
-held out for evaluation on mazes never seen in training.
+held out for evaluation on mazes never seen in training. A reset with ``seed`` s plays layout
+``layout_start + s mod num_layouts`` (or ``options["layout_id"]``); an unseeded reset draws one.
 
 Rules: start at the top-left cell, goal at the bottom-right; actions 0=N, 1=S, 2=E, 3=W; a move into a wall
 leaves the agent in place but still counts as a step; reward +1 on entering the goal (episode ends) and
@@ -151,7 +152,10 @@ class MazeEnv(gym.Env):
         super().reset(seed=seed)
         options = options or {}
         layout_id = options.get("layout_id")
-        if layout_id is None:
+        if layout_id is None and seed is not None:
+            # Any num_layouts consecutive seeds cover every layout once (100 evaluation episodes: 100 mazes).
+            layout_id = self.layout_start + seed % self.num_layouts
+        elif layout_id is None:
             layout_id = self.layout_start + int(self.np_random.integers(self.num_layouts))
         self._load_layout(int(layout_id))
         if options.get("random_start", False):

@@ -63,9 +63,7 @@ def main() -> None:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))
             variants = [v for v in ABLATION if v not in ("bco", "iupe")]
-            requests.append(
-                dict(table="ablation", name="maze10", preset=PRESETS["maze10"], methods=variants, data_table="table1")
-            )
+            requests.append(dict(table="ablation", name="maze10", preset=PRESETS["maze10"], methods=variants))
         runs = bench.plan_all([{**request, "seeds": args.seeds} for request in requests], jobs=args.jobs)
         unique = {(run.table, run.name, run.method, run.seed): run for run in runs}
         bench.execute(list(unique.values()), jobs=args.jobs)
