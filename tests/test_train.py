@@ -2,11 +2,19 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from conftest import CHECKPOINT, evaluate, run_cli, train_args
-from lerobot.datasets import LeRobotDataset
+from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
+from safetensors.torch import load_file
+
+from lerobot_iupe.benchmark import evaluate_checkpoint
+from lerobot_iupe.envs.configs import MazeEnvConfig
+from lerobot_iupe.frames import column_array
+from lerobot_iupe.modeling_iupe import CYCLES_FILE, IUPEPolicy
 
 
 def test_iupe_learns_cartpole_from_state_only_demos(cartpole_run, tmp_path):
@@ -18,9 +26,16 @@ def test_iupe_learns_cartpole_from_state_only_demos(cartpole_run, tmp_path):
     assert result["pc_success"] >= 95
 
 
-def test_maze_policy_trains_and_lerobot_eval_runs(maze_run, tmp_path):
-    result = evaluate(maze_run / CHECKPOINT, tmp_path / "eval", "--env.type=maze", "--env.size=3", episodes=2)
-    assert result["n_episodes"] == 2 and 0 <= result["pc_success"] <= 100
+@pytest.mark.parametrize("mode", ["argmax", "sample"])
+def test_lerobot_eval_of_an_image_checkpoint_matches_the_benchmark_evaluation(maze_run, tmp_path, mode):
+    """lerobot-eval and the benchmark's evaluation are one evaluation path, under either --policy.eval_mode."""
+    cli = evaluate(
+        maze_run / CHECKPOINT, tmp_path / "eval", "--env.type=maze", "--env.size=3", f"--policy.eval_mode={mode}",
+        episodes=4,
+    )  # fmt: skip
+    ours = evaluate_checkpoint(maze_run / CHECKPOINT, MazeEnvConfig(size=3), episodes=4, eval_mode=mode)
+    assert cli["n_episodes"] == 4
+    assert (cli["avg_sum_reward"], cli["pc_success"]) == pytest.approx((ours["avg_sum_reward"], ours["pc_success"]))
 
 
 def make_dataset_without_observation(root):
@@ -89,38 +104,44 @@ def test_bad_training_input_fails_before_training(case, message, cartpole_expert
     assert not (out / "checkpoints").exists()
 
 
-def test_bco_and_supervised_bc_run_through_the_same_loop(cartpole_expert, cartpole_random, data_dir, tmp_path):
+def cycles_of(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / CHECKPOINT / CYCLES_FILE).read_text().splitlines()]
+
+
+def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpole_random, tmp_path):
+    pre_transitions = LeRobotDatasetMetadata("local/r", root=cartpole_random).total_frames - 400  # 400 episodes
+    iupe = cycles_of(cartpole_run)
+    assert all(c["sampled_set_size"] == pre_transitions for c in iupe)  # |I^s| = |I_pre|
+    assert any(c["label_non_map"] > 0 for c in iupe)
     bco = tmp_path / "bco"
-    run_cli(
-        "lerobot-train",
-        *train_args(
-            cartpole_expert,
-            cartpole_random,
-            bco,
-            "--steps=20",
-            "--batch_size=64",
-            "--policy.cycle_steps=10",
-            "--policy.rollout_episodes=4",
-            "--policy.sampling=false",
-            "--policy.exploration=false",
-            "--policy.attention=false",
-        ),
-    )
-    config = json.loads((bco / CHECKPOINT / "config.json").read_text())
-    assert (config["sampling"], config["exploration"], config["attention"]) == (False, False, False)
+    switches = ["--policy.sampling=false", "--policy.exploration=false", "--policy.attention=false"]
+    short = ["--steps=20", "--batch_size=64", "--policy.cycle_steps=10", "--policy.rollout_episodes=4"]
+    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, bco, *short, *switches))
+    cycles = cycles_of(bco)
+    # BCO(α): I_pre plus every transition of the latest rollouts; argmax labels; no attention modules
+    assert all(c["sampled_set_size"] > pre_transitions + 4 for c in cycles)
+    assert all(c["label_non_map"] == 0 for c in cycles)
+    assert not [k for k in load_file(bco / CHECKPOINT / "model.safetensors") if "gamma" in k]
+
+
+def test_supervised_bc_learns_the_true_actions(cartpole_random, data_dir, tmp_path):
     labelled = data_dir / "cartpole-expert-labelled"
     run_cli(
-        "lerobot-iupe-collect",
-        "--env.type=cartpole",
-        "--agent=expert",
-        "--episodes=3",
-        "--keep_actions=true",
-        "--dataset.repo_id=local/labelled",
-        f"--dataset.root={labelled}",
-    )
+        "lerobot-iupe-collect", "--env.type=cartpole", "--agent=expert", "--episodes=3", "--keep_actions=true",
+        "--dataset.repo_id=local/labelled", f"--dataset.root={labelled}",
+    )  # fmt: skip
     bc = tmp_path / "bc"
-    run_cli("lerobot-train", *train_args(labelled, cartpole_random, bc, "--steps=20", "--policy.supervised=true"))
-    assert (bc / CHECKPOINT / "model.safetensors").exists()
+    run_cli(
+        "lerobot-train",
+        *train_args(labelled, cartpole_random, bc, "--steps=150", "--batch_size=64", "--policy.supervised=true"),
+    )
+    assert not (bc / CHECKPOINT / CYCLES_FILE).exists()  # no rollouts, no cycles
+    policy = IUPEPolicy.from_pretrained(bc / CHECKPOINT)
+    dataset = LeRobotDataset("local/labelled", root=labelled)
+    states = torch.as_tensor(column_array(dataset.hf_dataset, "observation.state"))
+    actions = column_array(dataset.hf_dataset, "action").reshape(-1)
+    agreement = (policy.pm_logits(states).argmax(-1).numpy() == actions).mean()
+    assert agreement >= 0.9
 
 
 def test_supervised_without_actions_is_refused(cartpole_expert, cartpole_random, tmp_path):
@@ -134,11 +155,39 @@ def test_supervised_without_actions_is_refused(cartpole_expert, cartpole_random,
     assert not (out / "checkpoints").exists()
 
 
-def test_resume_continues_training(cartpole_expert, cartpole_random, tmp_path):
-    out = tmp_path / "train"
-    args = ["--steps=10", "--batch_size=64", "--save_freq=10", "--policy.cycle_steps=5", "--policy.rollout_episodes=2"]
-    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, out, *args))
-    config = out / CHECKPOINT / "train_config.json"
-    result = run_cli("lerobot-train", f"--config_path={config}", "--resume=true", "--steps=20")
-    assert "IUPE cycle" in result.stdout + result.stderr
-    assert (out / "checkpoints" / "000020" / "pretrained_model" / "model.safetensors").exists()
+def without_timing(cycles: list[dict]) -> list[dict]:
+    return [{k: v for k, v in c.items() if not k.endswith("_s")} for c in cycles]
+
+
+def test_a_resumed_run_continues_exactly_where_an_uninterrupted_one_would_be(
+    cartpole_expert, cartpole_random, tmp_path
+):
+    args = ["--batch_size=64", "--save_freq=10", "--policy.cycle_steps=4", "--policy.rollout_episodes=4", "--seed=5"]
+    whole = tmp_path / "whole"
+    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, whole, "--steps=20", *args))
+    parts = tmp_path / "parts"
+    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, parts, "--steps=10", *args))
+    config = parts / CHECKPOINT / "train_config.json"
+    run_cli("lerobot-train", f"--config_path={config}", "--resume=true", "--steps=20")
+    # same cycle boundaries, rollout seeds, successes and selections (a worse cycle keeps the earlier selection)
+    assert without_timing(cycles_of(parts)) == without_timing(cycles_of(whole))
+    assert [c["step"] for c in cycles_of(whole)] == [4, 8, 12, 16, 20]
+    model = "model.safetensors"
+    assert (parts / CHECKPOINT / model).read_bytes() == (whole / CHECKPOINT / model).read_bytes()
+
+
+def test_lerobot_seed_drives_iupe_unless_the_policy_seed_is_given(cartpole_expert, cartpole_random, tmp_path):
+    def train(name: str, *extra: str) -> Path:
+        out = tmp_path / name
+        short = ["--steps=8", "--batch_size=64", "--policy.cycle_steps=4", "--policy.rollout_episodes=2"]
+        run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, out, *short, *extra))
+        return out
+
+    def rollout_seeds(run: Path) -> list[int]:
+        return [c["rollout_seed"] for c in cycles_of(run)]
+
+    a, b, other = train("a", "--seed=3"), train("b", "--seed=3"), train("other", "--seed=4")
+    assert (a / CHECKPOINT / "model.safetensors").read_bytes() == (b / CHECKPOINT / "model.safetensors").read_bytes()
+    assert rollout_seeds(a) == rollout_seeds(b) and rollout_seeds(other) != rollout_seeds(a)
+    fixed3, fixed4 = train("fixed3", "--seed=3", "--policy.seed=7"), train("fixed4", "--seed=4", "--policy.seed=7")
+    assert rollout_seeds(fixed3) == rollout_seeds(fixed4) != rollout_seeds(a)

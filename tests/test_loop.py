@@ -1,0 +1,177 @@
+"""The IUPE cycle in process, on real datasets and real envs, stepped as lerobot-train steps it
+(forward → backward → clip → optimizer step → zero_grad → update)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import CHECKPOINT
+from lerobot.datasets import LeRobotDatasetMetadata
+from lerobot.policies import make_policy
+from safetensors.torch import load_file
+
+import lerobot_iupe.modeling_iupe as modeling
+from lerobot_iupe.algorithm import Transitions
+from lerobot_iupe.configuration_iupe import IUPEConfig
+from lerobot_iupe.modeling_iupe import TRAINING_STATE_FILE, IUPEPolicy
+
+
+def build(expert: Path, pre: Path, **overrides) -> IUPEPolicy:
+    meta = LeRobotDatasetMetadata(f"local/{expert.name}", root=expert)
+    settings = {"seed": 0, "rollout_episodes": 4, "cycle_steps": 2, "idm_epochs": 1, **overrides}
+    config = IUPEConfig(pre_demos_repo_id=f"local/{pre.name}", pre_demos_root=str(pre), device="cpu", **settings)
+    return make_policy(config, ds_meta=meta)
+
+
+def frame_batch(expert: Path, size: int, seed: int = 0) -> dict:
+    """A batch as LeRobot's sampler gives it: frame indices, never an episode's last frame."""
+    episodes = LeRobotDatasetMetadata(f"local/{expert.name}", root=expert).episodes
+    frames = np.concatenate(
+        [np.arange(a, b - 1) for a, b in zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True)]
+    )
+    return {"index": torch.as_tensor(np.random.default_rng(seed).choice(frames, size))}
+
+
+def train_steps(policy: IUPEPolicy, expert: Path, steps: int, optimizer=None) -> torch.optim.Optimizer:
+    optimizer = optimizer or torch.optim.Adam(policy.get_optim_params(), lr=1e-3)
+    policy.train()
+    for step in range(steps):
+        loss, _ = policy.forward(frame_batch(expert, 16, step))
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(policy.parameters(), 10.0)
+        optimizer.step()
+        optimizer.zero_grad()
+        policy.update()
+    return optimizer
+
+
+def non_policy_gradients(policy: IUPEPolicy) -> list[str]:
+    optimised = {id(p) for p in policy.get_optim_params()}
+    return [name for name, p in policy.named_parameters() if id(p) not in optimised and p.grad is not None]
+
+
+def test_after_a_step_only_the_policy_model_carries_gradients(cartpole_expert, cartpole_random):
+    policy = build(cartpole_expert, cartpole_random)
+    loss, _ = policy.forward(frame_batch(cartpole_expert, 16))  # the first step trains the IDM on I_pre
+    loss.backward()
+    assert non_policy_gradients(policy) == []  # what lerobot-train clips and logs as grdn
+    optimizer = torch.optim.Adam(policy.get_optim_params())
+    optimizer.step()
+    optimizer.zero_grad()
+    policy.update()
+    train_steps(policy, cartpole_expert, 1, optimizer)  # ends a cycle: rollouts, I^s, IDM retrained
+    assert len(policy.cycles) == 1
+    policy.forward(frame_batch(cartpole_expert, 16))[0].backward()
+    assert non_policy_gradients(policy) == []
+
+
+def test_idm_labels_in_eval_mode_leave_batch_norm_statistics_alone(maze_expert, maze_random):
+    policy = build(maze_expert, maze_random, image_backbone="resnet18", idm_batch_size=32)
+    policy.train()
+    policy.forward(frame_batch(maze_expert, 8))  # starts training: the IDM learns I_pre in train mode
+    before = {k: v.clone() for k, v in policy.idm_encoder.state_dict().items() if "running" in k}
+    assert before
+    policy.forward(frame_batch(maze_expert, 8, seed=1))  # labels a batch of expert pairs
+    after = {k: v for k, v in policy.idm_encoder.state_dict().items() if "running" in k}
+    assert all(torch.equal(before[k], after[k]) for k in before)
+
+
+def test_building_a_policy_leaves_the_process_thread_count_alone(cartpole_run, cartpole_expert, cartpole_random):
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        IUPEPolicy.from_pretrained(cartpole_run / CHECKPOINT)  # as lerobot-eval and relabelling do
+        policy = build(cartpole_expert, cartpole_random)
+        assert torch.get_num_threads() == 2
+        policy.forward(frame_batch(cartpole_expert, 16))  # training starts: vector policies train on 1 thread
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(threads)
+
+
+class Spy:
+    """Records a real function's arguments and result."""
+
+    def __init__(self, function):
+        self.function, self.calls = function, []
+
+    def __call__(self, *args, **kwargs):
+        result = self.function(*args, **kwargs)
+        self.calls.append((args, kwargs, result))
+        return result
+
+
+def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_model(
+    maze_expert, maze_random, monkeypatch, tmp_path
+):
+    policy = build(maze_expert, maze_random, rollout_episodes=8)
+    sampled_sets = Spy(modeling.build_sampled_set)
+    monkeypatch.setattr(modeling, "build_sampled_set", sampled_sets)
+    rollouts = Spy(policy.rollout)
+    monkeypatch.setattr(policy, "rollout", rollouts)
+    selected_pm = None
+    optimizer = None
+    for _ in range(3):
+        optimizer = train_steps(policy, maze_expert, 2, optimizer)
+        if policy.cycles[-1]["selected"]:
+            selected_pm = {k: v.clone() for k, v in policy.state_dict().items() if k.startswith("pm_")}
+    pre = policy._training_state["pre"]
+    mixed = 0
+    for (_, kwargs, (episodes, successes, _)), (args, _, sampled) in zip(
+        rollouts.calls, sampled_sets.calls, strict=True
+    ):
+        _, successful, _, size, _ = args
+        expected = Transitions.concat([e for e, ok in zip(episodes, successes, strict=True) if ok] or [pre.take([])])
+        assert np.array_equal(successful.states, expected.states)  # only runs that reached the goal
+        assert np.array_equal(successful.actions, expected.actions)
+        assert size == len(pre) and len(sampled) == len(pre)
+        assert kwargs["explore"] is True
+        mixed += 0 < successes.sum() < len(successes)
+    assert mixed, "no cycle had both successful and failed rollouts: the test would not tell them apart"
+    assert all(c["label_non_map"] > 0 for c in policy.cycles)  # labels are draws, not the IDM's argmax
+    # rollouts act by sampling: some actions are not the policy's argmax
+    episodes = rollouts.calls[-1][2][0]
+    states = torch.as_tensor(np.concatenate([e.states for e in episodes]))
+    actions = np.concatenate([e.actions for e in episodes])
+    assert (policy.pm_logits(states).argmax(-1).numpy() != actions).any()
+    # the checkpoint holds the model of the last selected cycle; the latest weights are kept beside it
+    policy.save_pretrained(tmp_path / "ckpt")
+    saved = load_file(tmp_path / "ckpt" / "model.safetensors")
+    assert all(torch.equal(saved[k], v) for k, v in selected_pm.items())
+    latest = torch.load(tmp_path / "ckpt" / TRAINING_STATE_FILE, weights_only=False)["latest_weights"]
+    assert all(torch.equal(latest[k], v) for k, v in policy.state_dict().items())
+
+
+def test_without_exploration_labels_and_rollouts_take_the_argmax(maze_expert, maze_random, monkeypatch):
+    policy = build(maze_expert, maze_random, exploration=False)
+    rollouts = Spy(policy.rollout)
+    monkeypatch.setattr(policy, "rollout", rollouts)
+    train_steps(policy, maze_expert, 2)
+    assert policy.cycles[0]["label_non_map"] == 0
+    episodes = rollouts.calls[0][2][0]
+    states = torch.as_tensor(np.concatenate([e.states for e in episodes]))
+    actions = np.concatenate([e.actions for e in episodes])
+    assert (policy.pm_logits(states).argmax(-1).numpy() == actions).all()
+
+
+def test_rollout_records_state_action_and_next_state_of_the_same_step(cartpole_expert, cartpole_random):
+    policy = build(cartpole_expert, cartpole_random)
+    policy.forward(frame_batch(cartpole_expert, 16))
+    episodes, successes, returns = policy.rollout(3, seed=4242, explore=True)
+    env = policy._env_cfg.make()
+    for i, episode in enumerate(episodes):
+        observation, _ = env.reset(seed=4242 + i)
+        total = 0.0
+        for t, action in enumerate(episode.actions):
+            assert np.array_equal(episode.states[t], observation["agent_pos"])
+            observation, reward, *_ = env.step(int(action))
+            assert np.array_equal(episode.next_states[t], observation["agent_pos"])
+            total += reward
+        assert total == returns[i]
+
+
+@pytest.mark.parametrize("part", ["pm_encoder", "idm_encoder"])
+def test_attention_gates_move_off_zero_in_training(cartpole_run, part):
+    weights = load_file(cartpole_run / CHECKPOINT / "model.safetensors")
+    assert weights[f"{part}.attention.gamma"].abs().item() > 0
