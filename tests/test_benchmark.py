@@ -1,10 +1,11 @@
 """lerobot-iupe-benchmark --quick end to end (real datasets, lerobot-train, LeRobot's evaluation code)."""
 
+import dataclasses
 import json
 
-from conftest import run_cli
+from conftest import CHECKPOINT, run_cli
 
-from lerobot_iupe.benchmark import method_flags, parse_training_log
+from lerobot_iupe.benchmark import PRESETS, Run, method_flags, read_training_run
 
 
 def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
@@ -16,14 +17,23 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     keys = {"env", "method", "seed", "eval_layouts", "P", "AER", "success_rate", "train_seconds"}
     assert all(keys <= set(r) for r in records)
     trained = [r for r in records if r["method"] in ("bco", "iupe")]
-    assert len(trained) == 6
-    assert {(r["env"], r["method"], r["eval_layouts"]) for r in trained} == {
-        ("cartpole", "bco", None),
-        ("cartpole", "iupe", None),
-        ("maze3", "bco", "demo"),
-        ("maze3", "bco", "heldout"),
-        ("maze3", "iupe", "demo"),
-        ("maze3", "iupe", "heldout"),
+    assert len(trained) == 10
+    # every maze checkpoint under both evaluation rules, on both layout sets; vector policies by argmax
+    assert {(r["env"], r["method"], r["eval_layouts"], r["eval_mode"]) for r in trained} == {
+        ("cartpole", "bco", None, "argmax"),
+        ("cartpole", "iupe", None, "argmax"),
+        *{
+            ("maze3", m, lay, mode)
+            for m in ("bco", "iupe")
+            for lay in ("demo", "heldout")
+            for mode in ("argmax", "sample")
+        },
+    }
+    maze = [r for r in records if r["env"] == "maze3"]
+    # held-out P uses references measured on the held-out layouts
+    assert len({(r["R_expert"], r["R_random"]) for r in maze if r["eval_layouts"] == "heldout"}) == 1
+    assert {r["R_random"] for r in maze if r["eval_layouts"] == "heldout"} != {
+        r["R_random"] for r in maze if r["eval_layouts"] == "demo"
     }
     assert all(r["train_seconds"] > 0 and r["cycles"] for r in trained)
     assert all(r["timing"]["idm_s"] > 0 and r["timing"]["rollouts_s"] > 0 for r in trained)
@@ -50,15 +60,19 @@ def test_method_flags_name_the_mechanisms():
     assert method_flags("iupe") == [] and method_flags("bc") == ["--policy.supervised=true"]
 
 
-def test_training_log_parsing():
-    log = (
-        "INFO IUPE cycle 1: success r=0.25 return=-310.5 IDM acc=0.9 ... time so far: rollouts 1.50s IDM 2.25s\n"
-        "INFO step:25 smpl:3K ep:5 epch:0.1 loss:0.6 grdn:1 lr:1e-03 updt_s:0.010 data_s:0.100\n"
-        "INFO IUPE cycle 2: success r=1.00 return=-90.0 IDM acc=0.9 ... time so far: rollouts 3.00s IDM 4.50s\n"
-    )
-    cycles, timing = parse_training_log(log, steps=50)
-    assert cycles == [
-        {"cycle": 1, "success_rate": 0.25, "return": -310.5},
-        {"cycle": 2, "success_rate": 1.0, "return": -90.0},
-    ]
-    assert timing == {"rollouts_s": 3.0, "idm_s": 4.5, "data_loading_s": 5.0}
+def test_records_are_keyed_by_everything_that_determines_them():
+    preset = PRESETS["cartpole"]
+    assert preset.data_key(quick=True) != preset.data_key(quick=False)  # --quick never reuses full datasets
+    run = Run("table1", "cartpole", preset, "iupe", 0, {}, {})
+    changed = dataclasses.replace(preset, train=[*preset.train, "--policy.idm_lr=1e-2"])
+    assert run.config_key(100) != dataclasses.replace(run, preset=changed).config_key(100)
+    assert run.config_key(100) != run.config_key(50)
+    assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)
+
+
+def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):
+    checkpoint = cartpole_run / CHECKPOINT
+    log = "INFO step:25 smpl:3K ep:5 epch:0.1 loss:0.6 grdn:1 lr:1e-03 updt_s:0.010 data_s:0.100\n"
+    cycles, timing = read_training_run(checkpoint, log, steps=200)
+    assert [c["cycle"] for c in cycles] == [1, 2, 3, 4] and [c["step"] for c in cycles] == [50, 100, 150, 200]
+    assert timing == {"rollouts_s": cycles[-1]["rollouts_s"], "idm_s": cycles[-1]["idm_s"], "data_loading_s": 20.0}
