@@ -464,7 +464,7 @@ class IUPEPolicy(PreTrainedPolicy):
         log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self._env_cfg.type}")
         saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path else None
         if saved is not None and saved.exists():
-            self._restore_training_state(torch.load(saved, map_location=self._device(), weights_only=False))
+            self._restore_training_state(torch.load(saved, map_location=self._device(), weights_only=True))
             log.info(f"IUPE: continuing from cycle {state['cycle']} (step {state['step']}) of {saved.parent}")
             return
         start = time.perf_counter()

@@ -139,7 +139,7 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     policy.save_pretrained(tmp_path / "ckpt")
     saved = load_file(tmp_path / "ckpt" / "model.safetensors")
     assert all(torch.equal(saved[k], v) for k, v in selected_pm.items())
-    latest = torch.load(tmp_path / "ckpt" / TRAINING_STATE_FILE, weights_only=False)["latest_weights"]
+    latest = torch.load(tmp_path / "ckpt" / TRAINING_STATE_FILE, weights_only=True)["latest_weights"]
     assert all(torch.equal(latest[k], v) for k, v in policy.state_dict().items())
 
 
