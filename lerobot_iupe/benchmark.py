@@ -528,6 +528,9 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             for (t, e, lay), (x, y) in refs.items()
         ],
     ]
+    findings = out / "findings.md"  # hand-written reading of these numbers, kept beside the report
+    if findings.exists():
+        lines += ["", findings.read_text().strip()]
     mazes = [e for e in envs1 if e.startswith("maze")]
     demo_layouts = lambda e: "demo" if e.startswith("maze") else None  # noqa: E731
     lines += ["", "## Table 1, argmax evaluation (demonstration layouts for mazes)", ""]

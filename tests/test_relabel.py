@@ -211,7 +211,8 @@ def test_kill_9_after_the_copy_is_written_loses_nothing(maze_run, maze_random, d
     process = subprocess.run([sys.executable, "-c", code, "relabel", *args], capture_output=True, text=True)
     assert process.returncode == -signal.SIGKILL, process.stderr[-3000:]
     staged = hidden_siblings(root)
-    assert len(staged) == 1 and (staged[0] / "meta" / "info.json").exists()  # the copy was complete
+    assert len(staged) == 1
+    assert "relabelled_by" in read_iupe_meta(root.parent / staged[0])  # the copy was complete
     assert tree_digest(root) == before
     LeRobotDataset("local/maze-random", root=root, video_backend="pyav")[0]
     run_cli("lerobot-iupe-relabel", *args)  # the next run cleans up the dead run's staged copy
