@@ -71,12 +71,14 @@ def test_maze_rules():
     obs2, reward, terminated, truncated, info = env.step(blocked)
     assert info["agent_cell"] == (0, 0) and np.array_equal(obs2["pixels"], obs["pixels"])
     assert reward == pytest.approx(-0.1 / 9) and not terminated
-    total, done = reward, False
+    total, done, steps = reward, False, 1
     while not done:
         obs, reward, terminated, truncated, info = env.step(env.unwrapped.expert_action())
         total += reward
+        steps += 1
         done = terminated or truncated
     assert terminated and info["is_success"] and reward == 1.0
+    assert total == pytest.approx(1.0 + (steps - 1) * -0.1 / 9)  # +1 at the goal, the step penalty otherwise
 
 
 def test_maze_layout_ranges():
@@ -105,3 +107,11 @@ def test_cartpole_success_is_the_papers_goal():
     for step in range(1, 200):
         obs, _, _, _, info = env.step(cartpole_expert(env, obs))
         assert info["is_success"] == (step >= 195)
+
+
+def test_consecutive_seeds_play_distinct_layouts():
+    """LeRobot's evaluation seeds its envs with consecutive seeds: 100 episodes must be 100 different mazes."""
+    for layouts in ("demo", "heldout"):
+        env = MazeEnvConfig(size=5, layouts=layouts).make()
+        ids = [env.reset(seed=500_000 + i)[1]["layout_id"] for i in range(100)]
+        assert len(set(ids)) == 100

@@ -14,6 +14,7 @@ from safetensors.torch import load_file
 import lerobot_iupe.modeling_iupe as modeling
 from lerobot_iupe.algorithm import Transitions
 from lerobot_iupe.configuration_iupe import IUPEConfig
+from lerobot_iupe.dataset_utils import read_iupe_meta
 from lerobot_iupe.modeling_iupe import TRAINING_STATE_FILE, IUPEPolicy
 
 
@@ -130,6 +131,9 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
         mixed += 0 < successes.sum() < len(successes)
     assert mixed, "no cycle had both successful and failed rollouts: the test would not tell them apart"
     assert all(c["label_non_map"] > 0 for c in policy.cycles)  # labels are draws, not the IDM's argmax
+    # rollouts play the expert dataset's own layouts
+    played = {env.unwrapped.layout.layout_id for env in policy._rollout_envs}
+    assert played <= set(read_iupe_meta(maze_expert)["layout_ids"])
     # rollouts act by sampling: some actions are not the policy's argmax
     episodes = rollouts.calls[-1][2][0]
     states = torch.as_tensor(np.concatenate([e.states for e in episodes]))
