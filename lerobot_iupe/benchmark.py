@@ -558,7 +558,12 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             lines.append(
                 f"| {METHOD_NAMES.get(variant, variant)} | {' | '.join(cells)} | {ref[0]:.3f} / {ref[1]:.3f} |"
             )
-        lines += ["", "BCO(α) and IUPE rows: Table 1's Maze 10×10 runs (same datasets, preset and seeds)."]
+        lines += [
+            "",
+            "BCO(α) and IUPE rows: Table 1's Maze 10×10 runs (same datasets, preset and seeds). Cells without n= are "
+            "one seed (seed 0): compare them with BCO(α) and IUPE of the same seed in results.json, not with the "
+            "3-seed means.",
+        ]
     low = [e for e in LOW_DATA if _group(records, table="lowdata", env=e)]
     if low:
         lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions (argmax evaluation)", ""]

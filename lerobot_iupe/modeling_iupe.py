@@ -515,6 +515,11 @@ class IUPEPolicy(PreTrainedPolicy):
         self.train()
         self.cycle_stats.update({"idm_loss": float(loss.detach()), "idm_accuracy": correct / len(held)})
 
+    def _reset_options(self, seed: int) -> dict | None:
+        """Mazes play the expert dataset's own layouts, one after the other as the seeds go on."""
+        layouts = self._rollout_layouts
+        return {"layout_id": layouts[seed % len(layouts)]} if layouts else None
+
     @torch.no_grad()
     def rollout(self, episodes: int, seed: int, explore: bool) -> tuple[list[Transitions], np.ndarray, np.ndarray]:
         """Run the PM in ``episodes`` environments at once (batched inference), one episode each."""
@@ -523,12 +528,8 @@ class IUPEPolicy(PreTrainedPolicy):
             self._rollout_envs.append(env_cfg.make())
         envs = self._rollout_envs[:episodes]
         key = "pixels" if self.is_image else "agent_pos"
-        layouts = self._rollout_layouts
         observations = [
-            env.reset(seed=seed + i, options={"layout_id": layouts[(seed + i) % len(layouts)]} if layouts else None)[0][
-                key
-            ]
-            for i, env in enumerate(envs)
+            env.reset(seed=seed + i, options=self._reset_options(seed + i))[0][key] for i, env in enumerate(envs)
         ]
         records = [([], [], []) for _ in envs]
         successes, returns = np.zeros(episodes, dtype=bool), np.zeros(episodes)
