@@ -105,3 +105,8 @@ def test_expert_frames_give_successive_states_by_frame_index(cartpole_expert):
         expert.pairs(expert.rows(torch.tensor([first_episode_end - 1])))
     with pytest.raises(KeyError, match="not in the expert dataset"):
         expert.rows(torch.tensor([len(states)]))
+
+
+def test_unknown_eval_mode_is_refused_naming_the_flag():
+    with pytest.raises(ValueError, match=r"--policy.eval_mode must be one of \['argmax', 'sample'\], got 'greedy'"):
+        IUPEConfig(eval_mode="greedy")
