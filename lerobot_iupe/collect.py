@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,19 +20,12 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 from tqdm.auto import tqdm
 
-from lerobot_iupe.dataset_utils import resolve_root, staged_directory, write_iupe_meta
+from lerobot_iupe.data.storage import DatasetTarget, resolve_root, staged_directory, write_iupe_meta
 from lerobot_iupe.envs.configs import IUPEEnvConfig
+from lerobot_iupe.envs.rollout import Episode, agent_act, run_episodes
 from lerobot_iupe.experts import AGENTS, make_agent
 
 REWARD, DONE, SUCCESS = "next.reward", "next.done", "next.success"
-
-
-@dataclass
-class DatasetTarget:
-    repo_id: str = "local/iupe-demos"
-    # Local directory of the dataset; defaults to $HF_LEROBOT_HOME/<repo_id>.
-    root: str | None = None
-    private: bool = False
 
 
 @dataclass
@@ -96,57 +90,49 @@ def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = T
 
 
 def _observation_entry(env_cfg: IUPEEnvConfig, observation: dict) -> dict:
-    if env_cfg.is_image:
-        return {OBS_IMAGE: observation["pixels"]}
-    return {OBS_STATE: np.asarray(observation["agent_pos"], dtype=np.float32)}
+    entry = {key: observation[env_key] for env_key, key in env_cfg.observation_keys.items()}
+    if OBS_STATE in entry:
+        entry[OBS_STATE] = np.asarray(entry[OBS_STATE], dtype=np.float32)
+    return entry
+
+
+def episode_frames(env_cfg: IUPEEnvConfig, episode: Episode, task: str, with_actions: bool) -> Iterator[dict]:
+    """The T + 1 frames of an episode of T steps (see the module's docstring)."""
+    success = False
+    for t, action in enumerate(episode.actions):
+        success |= episode.successes[t]
+        frame = _observation_entry(env_cfg, episode.observations[t])
+        if with_actions:
+            frame[ACTION] = np.array([action], dtype=np.int64)
+        done = t == len(episode) - 1
+        reward = np.array([episode.rewards[t]], dtype=np.float32)
+        yield {**frame, REWARD: reward, DONE: np.array([done]), SUCCESS: np.array([success]), "task": task}
+    last = _observation_entry(env_cfg, episode.observations[-1])
+    if with_actions:
+        last[ACTION] = np.zeros(1, dtype=np.int64)
+    yield {**last, REWARD: np.zeros(1, np.float32), DONE: np.array([True]), SUCCESS: np.array([success]), "task": task}
 
 
 def record_episodes(dataset: LeRobotDataset, cfg: CollectConfig) -> dict:
     """Play ``cfg.episodes`` episodes into ``dataset``; returns per-episode statistics."""
     env_cfg = cfg.env
     env = env_cfg.make()
-    agent = make_agent(env_cfg.type, cfg.agent)
+    act = agent_act([env], make_agent(env_cfg.type, cfg.agent))
     task = env.get_wrapper_attr("task_description")
     returns, successes, lengths, layouts = [], [], [], []
     progress = tqdm(range(cfg.episodes), desc=f"{env_cfg.type} {cfg.agent}", unit="episode")
-    for episode in progress:
-        seed = cfg.seed + episode
+    for episode_index in progress:
+        seed = cfg.seed + episode_index
         options = {"layout_id": seed, "random_start": cfg.random_start} if env_cfg.is_image else None
-        observation, info = env.reset(seed=seed, options=options)
-        total, success, done, steps = 0.0, False, False, 0
-        while not done:
-            action = agent(env, observation)
-            next_observation, reward, terminated, truncated, info = env.step(action)
-            done = terminated or truncated
-            success |= bool(info["is_success"])
-            frame = _observation_entry(env_cfg, observation)
-            if cfg.stores_actions:
-                frame[ACTION] = np.array([action], dtype=np.int64)
-            frame.update(
-                {
-                    REWARD: np.array([reward], dtype=np.float32),
-                    DONE: np.array([done]),
-                    SUCCESS: np.array([success]),
-                    "task": task,
-                }
-            )
+        episode = run_episodes([env], act, [seed], [options])[0]
+        for frame in episode_frames(env_cfg, episode, task, cfg.stores_actions):
             dataset.add_frame(frame)
-            total += float(reward)
-            observation = next_observation
-            steps += 1
-        last = _observation_entry(env_cfg, observation)
-        if cfg.stores_actions:
-            last[ACTION] = np.zeros(1, dtype=np.int64)
-        last.update(
-            {REWARD: np.zeros(1, np.float32), DONE: np.array([True]), SUCCESS: np.array([success]), "task": task}
-        )
-        dataset.add_frame(last)
         dataset.save_episode()
-        returns.append(total)
-        successes.append(success)
-        lengths.append(steps)
+        returns.append(episode.total_reward)
+        successes.append(episode.success)
+        lengths.append(len(episode))
         if env_cfg.is_image:
-            layouts.append(int(info["layout_id"]))
+            layouts.append(int(episode.info["layout_id"]))
         progress.set_postfix(mean_return=f"{np.mean(returns):.2f}")
     env.close()
     return {"returns": returns, "successes": successes, "lengths": lengths, "layout_ids": layouts}

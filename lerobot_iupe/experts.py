@@ -18,6 +18,7 @@ from safetensors.numpy import load_file
 from tqdm.auto import tqdm
 
 from lerobot_iupe.envs.configs import IUPEEnvConfig
+from lerobot_iupe.envs.rollout import agent_act, run_episodes
 
 Agent = Callable[[gym.Env, dict], int]
 AGENTS = ("expert", "random")
@@ -133,24 +134,12 @@ def make_agent(env_type: str, agent: str) -> Agent:
     return experts[env_type]()
 
 
-def run_episode(env: gym.Env, agent: Agent, seed: int, options: dict | None = None) -> tuple[float, bool]:
-    """Play one episode; returns (return, reached the goal)."""
-    observation, info = env.reset(seed=seed, options=options)
-    total, done, success = 0.0, False, False
-    while not done:
-        observation, reward, terminated, truncated, info = env.step(agent(env, observation))
-        total += float(reward)
-        success |= bool(info.get("is_success", False))
-        done = terminated or truncated
-    return total, success
-
-
 def reference_returns(env_cfg: IUPEEnvConfig, agent: str, episodes: int = 100, seed: int = 100_000) -> np.ndarray:
     """Returns of ``episodes`` seeded episodes (seeds ``seed, seed+1, …``) of a built-in agent."""
     env = env_cfg.make()
-    policy = make_agent(env_cfg.type, agent)
+    act = agent_act([env], make_agent(env_cfg.type, agent))
     returns = [
-        run_episode(env, policy, seed + i)[0]
+        run_episodes([env], act, [seed + i])[0].total_reward
         for i in tqdm(range(episodes), desc=f"{env_cfg.type} {agent}", leave=False)
     ]
     env.close()

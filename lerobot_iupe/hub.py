@@ -13,7 +13,8 @@ from lerobot.datasets.dataset_metadata import CODEBASE_VERSION
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
-from lerobot_iupe.dataset_utils import CommandError, read_iupe_meta
+from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
+from lerobot_iupe.errors import CommandError
 
 # Package data (datasets_cards/ at the repository's top level links to it), so a wheel install can push.
 CARD_TEMPLATE = resources.files("lerobot_iupe") / "assets" / "iupe_demonstrations.md"
@@ -77,7 +78,7 @@ def push_dataset(root: str | Path, repo_id: str, private: bool = False, license:
     These are the steps of ``LeRobotDataset.push_to_hub`` done with ``HfApi`` directly: LeRobot's version
     validates its own card against huggingface.co (a hard-coded URL), so it fails on any other ``HF_ENDPOINT``."""
     root = Path(root)
-    if not (root / "meta" / "info.json").exists():
+    if not is_dataset(root):
         raise FileNotFoundError(f"--dataset.root={root} is not a LeRobot dataset (no meta/info.json)")
     card = build_card(root, repo_id, license)
     api = HfApi()

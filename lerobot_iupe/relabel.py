@@ -3,7 +3,7 @@
 Every frame t with a successor gets ``action = IDM(s_t, s_{t+1})``. The last frame of an episode has no
 successor; it repeats the label of the frame before it (an episode of a single frame gets action 0), which is
 what a policy that does not drop last frames should see. The dataset is rewritten beside itself and swapped in
-only when complete (``dataset_utils.staged_directory``): the original survives any failure or kill.
+only when complete (``data.storage.staged_directory``): the original survives any failure or kill.
 """
 
 from __future__ import annotations
@@ -26,22 +26,23 @@ from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.compute_stats import aggregate_stats, get_feature_stats
 from lerobot.datasets.feature_utils import get_hf_features_from_features
 from lerobot.datasets.io_utils import load_stats, write_info, write_stats, write_table_one_row_group_per_episode
-from lerobot.utils.constants import ACTION, OBS_IMAGE
+from lerobot.utils.constants import ACTION
 from lerobot.utils.import_utils import get_safe_default_video_backend
 from tqdm.auto import tqdm
 
-from lerobot_iupe.algorithm import choose_actions
-from lerobot_iupe.collect import DatasetTarget
-from lerobot_iupe.dataset_utils import (
-    CommandError,
+from lerobot_iupe.data.compat import check_compatible, checkpoint_spec, dataset_spec
+from lerobot_iupe.data.readers import Chunk, column_array, episode_bounds, prefetched, state_chunks, video_chunks
+from lerobot_iupe.data.storage import (
+    DatasetTarget,
+    is_dataset,
     read_iupe_meta,
     recover_interrupted_swap,
     resolve_root,
     staged_directory,
     write_iupe_meta,
 )
-from lerobot_iupe.frames import Chunk, column_array, episode_bounds, prefetched, state_chunks, timed, video_chunks
-from lerobot_iupe.modeling_iupe import IUPEPolicy, env_config_from_settings
+from lerobot_iupe.errors import CommandError
+from lerobot_iupe.policy import IUPEPolicy
 
 MODES = ("argmax", "sample")
 LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
@@ -97,7 +98,6 @@ class RelabelReport:
     # Share of frames (with a successor) whose new label equals the action the dataset already had.
     agreement_with_existing: float | None
     seconds: float
-    decode_seconds: float
     written: bool = False
 
     @property
@@ -148,37 +148,14 @@ def checkpoint_fingerprint(path: str) -> str:
     return hashlib.sha256(weights.read_bytes()).hexdigest()[:16]
 
 
-def check_compatible(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite: bool, dry_run: bool) -> str:
-    """Raise a ValueError naming both sides when the dataset cannot be labelled by this checkpoint.
-    Returns the observation key the IDM reads."""
-    config = policy.config
-    key = config.observation_key
-    where = f"dataset {meta.root}"
-    if key not in meta.features:
-        present = [k for k in meta.features if k.startswith("observation.")]
-        raise ValueError(f"the checkpoint reads '{key}' but the {where} has no such feature (it has {present})")
-    expected = tuple(config.input_features[key].shape)
-    stored = tuple(meta.features[key]["shape"])
-    if key == OBS_IMAGE:
-        stored = (stored[2], stored[0], stored[1])  # LeRobot stores (H, W, C); the policy reads (C, H, W)
-    if stored != expected:
-        raise ValueError(f"'{key}' has shape {stored} in the {where} but the checkpoint expects {expected}")
-    env_settings = config.env_settings
-    if env_settings:
-        env = env_config_from_settings(env_settings)
-        if meta.fps != env.fps:
-            raise ValueError(f"the {where} is at {meta.fps} fps but the checkpoint's {env.type} env runs at {env.fps}")
-        data_env = read_iupe_meta(meta.root).get("env")
-        if data_env and data_env.get("type") != env.type:
-            raise ValueError(f"the {where} was recorded in '{data_env['type']}' but the checkpoint is for '{env.type}'")
-        if data_env and env_config_from_settings(data_env).n_actions != config.n_actions:
-            raise ValueError(
-                f"the {where} has {env_config_from_settings(data_env).n_actions} actions but the checkpoint "
-                f"predicts {config.n_actions}"
-            )
+def check_labelable(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite: bool, dry_run: bool) -> str:
+    """Raise an error naming both sides when this checkpoint cannot label the dataset (``data.compat``), or when
+    the dataset has actions and replacing them was not asked for. Returns the observation key the IDM reads."""
+    key = policy.config.observation_key
+    check_compatible(checkpoint_spec(policy.config), dataset_spec(meta, key, f"the dataset {meta.root}"))
     if ACTION in meta.features and not (overwrite or dry_run):
         raise FileExistsError(
-            f"the {where} already has an '{ACTION}' feature; pass --overwrite=true to replace it "
+            f"the dataset {meta.root} already has an '{ACTION}' feature; pass --overwrite=true to replace it "
             "(or --dry_run=true to compare the IDM's labels with it)"
         )
     return key
@@ -200,11 +177,10 @@ def label_chunks(
             frames = chunk.frames.to(device)
             n = len(frames) - 1
             if n > 0:
-                logits = policy.idm_logits(frames[:-1], frames[1:]).float().cpu()
-                chosen = choose_actions(logits, mode == "sample", generator)
+                output = policy.idm_output(frames[:-1], frames[1:]).float().cpu()
+                chosen = policy.idm_head.choose(output, mode == "sample", generator)
                 labels[chunk.start : chunk.start + n] = chosen.numpy()
-                probs = torch.softmax(logits, dim=-1)
-                confidence[chunk.start : chunk.start + n] = probs.gather(1, chosen[:, None])[:, 0].numpy()
+                confidence[chunk.start : chunk.start + n] = policy.idm_head.likelihood(output, chosen).numpy()
             if chunk.ends_episode:
                 last = chunk.start + n
                 labels[last] = labels[last - 1] if n > 0 else 0
@@ -329,20 +305,19 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
     policy = load_idm(cfg.policy.path, cfg.device)
     root = resolve_root(cfg.dataset.repo_id, cfg.dataset.root)
     recover_interrupted_swap(root)
-    if not (root / "meta" / "info.json").exists():
+    if not is_dataset(root):
         if root.exists():
             raise FileNotFoundError(f"--dataset.root={root} exists but is not a LeRobot dataset (no meta/info.json)")
         pull_dataset(cfg.dataset.repo_id, root, backend)
     dataset = LeRobotDataset(cfg.dataset.repo_id, root=root, video_backend=backend)
     meta = dataset.meta
-    key = check_compatible(policy, meta, cfg.overwrite, cfg.dry_run)
+    key = check_labelable(policy, meta, cfg.overwrite, cfg.dry_run)
 
     start = time.perf_counter()
-    decode_clock = [0.0]
     if meta.features[key]["dtype"] == "video":
-        chunks = prefetched(timed(video_chunks(meta, key, cfg.batch_size, backend), decode_clock))
+        chunks = prefetched(video_chunks(meta, key, cfg.batch_size, backend))
     else:
-        chunks = timed(state_chunks(dataset, key, cfg.batch_size), decode_clock)
+        chunks = state_chunks(dataset, key, cfg.batch_size)
     total = meta.total_frames
     labels, confidence = label_chunks(policy, chunks, total, cfg.mode, cfg.seed, cfg.device)
     seconds = time.perf_counter() - start
@@ -362,7 +337,6 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
         mean_confidence=float(confidence.mean()),
         agreement_with_existing=agreement,
         seconds=seconds,
-        decode_seconds=decode_clock[0],
     )
     if cfg.dry_run:
         return report

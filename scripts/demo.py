@@ -8,11 +8,12 @@
 
     python scripts/demo.py                      # CartPole, the `make demo` default
     python scripts/demo.py --env mountaincar    # also: acrobot, maze3, maze5, maze10
-The same code path as `lerobot-iupe-benchmark` (one IUPE run of seed 0). The checkpoint stays at
-outputs/demo/runs/demo/<env>/iupe-s0/checkpoints/last/pretrained_model (outputs/demo-<env> for other envs).
+The same code path as `lerobot-iupe-benchmark` (one IUPE run of seed 0), quiet: one line per stage and a progress
+bar while training; every command's full output is in a log file under the output folder.
 """
 
 import argparse
+import logging
 import shutil
 import time
 from pathlib import Path
@@ -25,24 +26,33 @@ def main() -> None:
     parser.add_argument("--env", choices=sorted(PRESETS), default="cartpole")
     parser.add_argument("--eval_episodes", type=int, default=50)
     args = parser.parse_args()
+    logging.disable(logging.WARNING)  # LeRobot's evaluation logs each batch; the table below says it all
     out = Path("outputs/demo" if args.env == "cartpole" else f"outputs/demo-{args.env}")
     shutil.rmtree(out, ignore_errors=True)
-    bench = Benchmark(out, eval_episodes=args.eval_episodes, echo=True)
+    bench = Benchmark(out, eval_episodes=args.eval_episodes, quiet=True)
+    preset = PRESETS[args.env]
     start = time.perf_counter()
-    bench.run_env("demo", args.env, PRESETS[args.env], ["iupe"], [0])
+    print(f"[1/3] collecting the {args.env} datasets (expert without actions, random pre-demonstrations)", flush=True)
+    runs = bench.plan("demo", args.env, preset, ["iupe"], [0])
+    print(f"      datasets in {out / 'data'} ({time.perf_counter() - start:.0f}s)", flush=True)
+    print(f"[2/3] training IUPE with lerobot-train ({preset.train.steps} steps), then evaluating", flush=True)
+    bench.execute(runs)
     calls = bench.log_call(f"python scripts/demo.py --env {args.env}", time.perf_counter() - start)
     records = bench.records()
     write_report(records, out, calls)
-    print("\n| method | env | eval layouts | eval mode | P | AER | success | train s |")
+    print(f"[3/3] evaluated on {args.eval_episodes} episodes per setting, seeds never used in training\n")
+    print("| method | env | eval layouts | eval mode | P | AER | success | train s |")
     print("|---|---|---|---|---|---|---|---|")
     for r in records:
         print(
             f"| IUPE | {r['env']} | {r['eval_layouts'] or '–'} | {r['eval_mode']} | {r['P']:.3f} | {r['AER']:.3f} "
             f"| {r['success_rate']:.0%} | {r['train_seconds']:.0f} |"
         )
-    print(f"references: expert {records[0]['R_expert']:.3f} (demonstrations), random {records[0]['R_random']:.3f}")
+    print(f"\nreferences: expert {records[0]['R_expert']:.3f} (demonstrations), random {records[0]['R_random']:.3f}")
     print(f"checkpoint: {out / 'runs' / 'demo' / args.env / 'iupe-s0' / CHECKPOINT}")
     print(f"plot: {out / 'cycles.png'}   report: {out / 'results.md'}")
+    print(f"logs: {out / 'runs' / 'demo' / args.env / 'iupe-s0.log'} (training), {out / 'data' / 'logs'} (datasets)")
+    print(f"total: {time.perf_counter() - start:.0f}s")
 
 
 if __name__ == "__main__":

@@ -2,10 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_iupe.algorithm import (
+from lerobot_iupe.policy.algorithm import (
     Transitions,
     apportion,
-    average_episodic_reward,
     build_sampled_set,
     choose_actions,
     performance,
@@ -131,4 +130,3 @@ def test_metrics():
     assert performance(np.array([500.0, 500.0]), 500.0, 20.0) == 1.0
     assert performance(np.array([20.0]), 500.0, 20.0) == 0.0
     assert performance(np.array([260.0]), 500.0, 20.0) == pytest.approx(0.5)
-    assert average_episodic_reward(np.array([1.0, 3.0])) == 2.0

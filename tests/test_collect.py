@@ -7,10 +7,10 @@ from conftest import run_cli
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe import collect as collect_module
-from lerobot_iupe.collect import CollectConfig, DatasetTarget, collect
-from lerobot_iupe.dataset_utils import read_iupe_meta
+from lerobot_iupe.collect import CollectConfig, collect
+from lerobot_iupe.data.readers import stored_frames
+from lerobot_iupe.data.storage import DatasetTarget, read_iupe_meta
 from lerobot_iupe.envs import CartPoleEnvConfig, MazeEnvConfig
-from lerobot_iupe.frames import stored_frames
 
 
 def test_expert_dataset_is_state_only_and_complete(cartpole_expert):

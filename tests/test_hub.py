@@ -103,7 +103,7 @@ def test_push_works_from_a_wheel_installed_in_a_fresh_venv(cartpole_expert, tmp_
     (site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     code = (
         "import sys, lerobot_iupe; print('PACKAGE', lerobot_iupe.__file__);"
-        "from lerobot_iupe.scripts.push import main; sys.argv[1:] = sys.argv[2:]; main()"
+        "from lerobot_iupe.cli.push import main; sys.argv[1:] = sys.argv[2:]; main()"
     )
     with LocalHub() as hub:
         result = subprocess.run(

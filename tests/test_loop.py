@@ -11,11 +11,11 @@ from lerobot.datasets import LeRobotDatasetMetadata
 from lerobot.policies import make_policy
 from safetensors.torch import load_file
 
-import lerobot_iupe.modeling_iupe as modeling
-from lerobot_iupe.algorithm import Transitions
-from lerobot_iupe.configuration_iupe import IUPEConfig
-from lerobot_iupe.dataset_utils import read_iupe_meta
-from lerobot_iupe.modeling_iupe import TRAINING_STATE_FILE, IUPEPolicy
+import lerobot_iupe.policy.training as training
+from lerobot_iupe.data.storage import read_iupe_meta
+from lerobot_iupe.data.transitions import Transitions
+from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
+from lerobot_iupe.policy.training import TRAINING_STATE_FILE
 
 
 def build(expert: Path, pre: Path, **overrides) -> IUPEPolicy:
@@ -107,17 +107,17 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     maze_expert, maze_random, monkeypatch, tmp_path
 ):
     policy = build(maze_expert, maze_random, rollout_episodes=8)
-    sampled_sets = Spy(modeling.build_sampled_set)
-    monkeypatch.setattr(modeling, "build_sampled_set", sampled_sets)
-    rollouts = Spy(policy.rollout)
-    monkeypatch.setattr(policy, "rollout", rollouts)
+    sampled_sets = Spy(training.build_sampled_set)
+    monkeypatch.setattr(training, "build_sampled_set", sampled_sets)
+    rollouts = Spy(policy.trainer.rollout)
+    monkeypatch.setattr(policy.trainer, "rollout", rollouts)
     selected_pm = None
     optimizer = None
     for _ in range(3):
         optimizer = train_steps(policy, maze_expert, 2, optimizer)
         if policy.cycles[-1]["selected"]:
             selected_pm = {k: v.clone() for k, v in policy.state_dict().items() if k.startswith("pm_")}
-    pre = policy._training_state["pre"]
+    pre = policy.trainer.state.pre
     mixed = 0
     for (_, kwargs, (episodes, successes, _)), (args, _, sampled) in zip(
         rollouts.calls, sampled_sets.calls, strict=True
@@ -132,13 +132,13 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     assert mixed, "no cycle had both successful and failed rollouts: the test would not tell them apart"
     assert all(c["label_non_map"] > 0 for c in policy.cycles)  # labels are draws, not the IDM's argmax
     # rollouts play the expert dataset's own layouts
-    played = {env.unwrapped.layout.layout_id for env in policy._rollout_envs}
+    played = {env.unwrapped.layout.layout_id for env in policy.trainer.envs}
     assert played <= set(read_iupe_meta(maze_expert)["layout_ids"])
     # rollouts act by sampling: some actions are not the policy's argmax
     episodes = rollouts.calls[-1][2][0]
     states = torch.as_tensor(np.concatenate([e.states for e in episodes]))
     actions = np.concatenate([e.actions for e in episodes])
-    assert (policy.pm_logits(states).argmax(-1).numpy() != actions).any()
+    assert (policy.pm_output(states).argmax(-1).numpy() != actions).any()
     # the checkpoint holds the model of the last selected cycle; the latest weights are kept beside it
     policy.save_pretrained(tmp_path / "ckpt")
     saved = load_file(tmp_path / "ckpt" / "model.safetensors")
@@ -149,21 +149,21 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
 
 def test_without_exploration_labels_and_rollouts_take_the_argmax(maze_expert, maze_random, monkeypatch):
     policy = build(maze_expert, maze_random, exploration=False)
-    rollouts = Spy(policy.rollout)
-    monkeypatch.setattr(policy, "rollout", rollouts)
+    rollouts = Spy(policy.trainer.rollout)
+    monkeypatch.setattr(policy.trainer, "rollout", rollouts)
     train_steps(policy, maze_expert, 2)
     assert policy.cycles[0]["label_non_map"] == 0
     episodes = rollouts.calls[0][2][0]
     states = torch.as_tensor(np.concatenate([e.states for e in episodes]))
     actions = np.concatenate([e.actions for e in episodes])
-    assert (policy.pm_logits(states).argmax(-1).numpy() == actions).all()
+    assert (policy.pm_output(states).argmax(-1).numpy() == actions).all()
 
 
 def test_rollout_records_state_action_and_next_state_of_the_same_step(cartpole_expert, cartpole_random):
     policy = build(cartpole_expert, cartpole_random)
     policy.forward(frame_batch(cartpole_expert, 16))
-    episodes, successes, returns = policy.rollout(3, seed=4242, explore=True)
-    env = policy._env_cfg.make()
+    episodes, successes, returns = policy.trainer.rollout(3, seed=4242, explore=True)
+    env = policy.trainer.env_cfg.make()
     for i, episode in enumerate(episodes):
         observation, _ = env.reset(seed=4242 + i)
         total = 0.0

@@ -4,9 +4,9 @@ import torch
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 
-from lerobot_iupe.configuration_iupe import IUPEConfig
-from lerobot_iupe.frames import column_array
-from lerobot_iupe.modeling_iupe import ExpertFrames, IUPEPolicy, SpatialSelfAttention, TokenSelfAttention
+from lerobot_iupe.data.readers import ExpertFrames, column_array
+from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
+from lerobot_iupe.policy.networks import SpatialSelfAttention, TokenSelfAttention
 
 
 def test_token_attention_is_identity_at_gamma_zero_and_mixes_positions_otherwise():
@@ -66,15 +66,15 @@ def test_save_load_gives_identical_actions(tmp_path):
 def test_idm_and_pm_output_one_logit_per_action():
     policy = make_policy(image=True)
     s, s_next = torch.rand(2, 3, 64, 64), torch.rand(2, 3, 64, 64)
-    assert policy.idm_logits(s, s_next).shape == (2, 4)
-    assert policy.pm_logits(s).shape == (2, 4)
+    assert policy.idm_output(s, s_next).shape == (2, 4)
+    assert policy.pm_output(s).shape == (2, 4)
 
 
 def test_resnet18_backbone_builds_and_runs():
     policy = make_policy(image=True, image_backbone="resnet18")
     policy.eval()
     s = torch.rand(2, 3, 64, 64)
-    assert policy.idm_logits(s, s).shape == (2, 4) and policy.pm_logits(s).shape == (2, 4)
+    assert policy.idm_output(s, s).shape == (2, 4) and policy.pm_output(s).shape == (2, 4)
     assert policy.pm_encoder.attention1.gamma.item() == 0.0
 
 
@@ -84,7 +84,7 @@ def test_select_action_follows_eval_mode_whatever_the_training_switches(explorat
     greedy = make_policy(image=False, exploration=exploration)
     with torch.no_grad():
         greedy.pm_head.weight.mul_(0)  # uniform-ish logits: sampling would disagree with the argmax often
-        argmax = greedy.pm_logits(obs["observation.state"]).argmax(-1).float()
+        argmax = greedy.pm_output(obs["observation.state"]).argmax(-1).float()
     assert torch.equal(greedy.select_action(obs)[:, 0], argmax)
     sampling = make_policy(image=False, exploration=not exploration, eval_mode="sample")
     sampling.load_state_dict(greedy.state_dict())

@@ -17,9 +17,8 @@ from lerobot.datasets.dataset_tools import remove_feature
 from test_hub import hub_env
 
 from lerobot_iupe import relabel as relabel_module
-from lerobot_iupe.collect import DatasetTarget
-from lerobot_iupe.dataset_utils import read_iupe_meta, write_iupe_meta
-from lerobot_iupe.frames import stored_frames
+from lerobot_iupe.data.readers import stored_frames
+from lerobot_iupe.data.storage import DatasetTarget, read_iupe_meta, write_iupe_meta
 from lerobot_iupe.relabel import CheckpointRef, RelabelConfig, relabel
 
 
@@ -204,9 +203,9 @@ def test_kill_9_after_the_copy_is_written_loses_nothing(maze_run, maze_random, d
     before = tree_digest(root)
     args = relabel_args(maze_run / CHECKPOINT, root, "--overwrite=true", "--video_backend=pyav")
     code = (
-        "import os, signal, sys; from lerobot_iupe import dataset_utils;"
+        "import os, signal, sys; from lerobot_iupe.data import storage as dataset_utils;"
         "dataset_utils.exchange_paths = lambda *a: os.kill(os.getpid(), signal.SIGKILL);"
-        "from lerobot_iupe.scripts.relabel import main; sys.argv[1:] = sys.argv[2:]; main()"
+        "from lerobot_iupe.cli.relabel import main; sys.argv[1:] = sys.argv[2:]; main()"
     )
     process = subprocess.run([sys.executable, "-c", code, "relabel", *args], capture_output=True, text=True)
     assert process.returncode == -signal.SIGKILL, process.stderr[-3000:]

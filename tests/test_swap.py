@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_iupe.dataset_utils import exchange_paths, recover_interrupted_swap
+from lerobot_iupe.data.storage import exchange_paths, recover_interrupted_swap
 
 WRITER = """
 import os, shutil, signal, sys
 from pathlib import Path
-from lerobot_iupe import dataset_utils
+from lerobot_iupe.data import storage as dataset_utils
 
 point, root = sys.argv[1], Path(sys.argv[2])
 die = lambda *_: os.kill(os.getpid(), signal.SIGKILL)

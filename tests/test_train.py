@@ -12,9 +12,10 @@ from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from safetensors.torch import load_file
 
 from lerobot_iupe.benchmark import evaluate_checkpoint
+from lerobot_iupe.data.readers import column_array
 from lerobot_iupe.envs.configs import MazeEnvConfig
-from lerobot_iupe.frames import column_array
-from lerobot_iupe.modeling_iupe import CYCLES_FILE, IUPEPolicy
+from lerobot_iupe.policy import IUPEPolicy
+from lerobot_iupe.policy.training import CYCLES_FILE
 
 
 def test_iupe_learns_cartpole_from_state_only_demos(cartpole_run, tmp_path):
@@ -66,9 +67,9 @@ def relabel_env(root, env: dict):
     [
         ("no_observation", "neither 'observation.state' nor 'observation.image'"),
         ("pre_without_action", "have no 'action' column"),
-        ("pre_other_state_size", "the pre-demonstrations' 'observation.state' has shape (2,)"),
-        ("pre_other_action_count", "with 3 actions but the expert data's env has 2"),
-        ("env_mismatch", "env acrobot observations have shape (6,)"),
+        ("pre_other_state_size", "'observation.state' has shape (2,) in the pre-demonstrations local/mc but (4,)"),
+        ("pre_other_action_count", "disagree on the env type: 'mountaincar' vs 'cartpole'"),
+        ("env_mismatch", "but (6,) in env acrobot"),
         ("missing_pre", "is not a LeRobot dataset"),
     ],
 )
@@ -140,7 +141,7 @@ def test_supervised_bc_learns_the_true_actions(cartpole_random, data_dir, tmp_pa
     dataset = LeRobotDataset("local/labelled", root=labelled)
     states = torch.as_tensor(column_array(dataset.hf_dataset, "observation.state"))
     actions = column_array(dataset.hf_dataset, "action").reshape(-1)
-    agreement = (policy.pm_logits(states).argmax(-1).numpy() == actions).mean()
+    agreement = (policy.pm_output(states).argmax(-1).numpy() == actions).mean()
     assert agreement >= 0.9
 
 

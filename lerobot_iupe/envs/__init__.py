@@ -7,6 +7,7 @@ from lerobot_iupe.envs.configs import (
     IUPEEnvConfig,
     MazeEnvConfig,
     MountainCarEnvConfig,
+    env_config_from_settings,
     register_gym_envs,
 )
 from lerobot_iupe.envs.maze import HELDOUT_LAYOUT_START, MazeEnv, MazeLayout
@@ -24,5 +25,6 @@ __all__ = [
     "MazeLayout",
     "MountainCarEnvConfig",
     "action_to_index",
+    "env_config_from_settings",
     "register_gym_envs",
 ]

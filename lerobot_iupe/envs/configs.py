@@ -21,12 +21,9 @@ class IUPEEnvConfig(EnvConfig):
     n_actions: int = 0
 
     @property
-    def gym_id(self) -> str:
-        return f"{GYM_NAMESPACE}/{self.task}"
-
-    @property
     def package_name(self) -> str:
-        return "lerobot_iupe"
+        """LeRobot's gym id is ``<package_name>/<task>``: the ids this package registers."""
+        return GYM_NAMESPACE
 
     @property
     def max_episode_steps(self) -> int:
@@ -35,6 +32,11 @@ class IUPEEnvConfig(EnvConfig):
     @property
     def is_image(self) -> bool:
         return OBS_IMAGE in self.features_map.values()
+
+    @property
+    def observation_keys(self) -> dict[str, str]:
+        """Env observation key → dataset/policy key (``agent_pos`` → ``observation.state``), from ``features_map``."""
+        return {env_key: key for env_key, key in self.features_map.items() if key != ACTION}
 
     def validate(self) -> None:
         """Raise a ValueError naming the flag when a setting is out of range (draccus hides __post_init__ errors)."""
@@ -173,3 +175,9 @@ def register_gym_envs() -> None:
         env_id = f"{GYM_NAMESPACE}/{task}"
         if env_id not in gym.registry:
             gym.register(env_id, entry_point=entry_point, kwargs=kwargs, max_episode_steps=max_steps)
+
+
+def env_config_from_settings(settings: dict) -> EnvConfig:
+    """The env config a dataset's ``meta/iupe.json`` records (``IUPEEnvConfig.settings()``, the other way)."""
+    fields = {k: v for k, v in settings.items() if k != "type"}
+    return EnvConfig.get_choice_class(settings["type"])(**fields)

@@ -13,7 +13,7 @@ an existing `action` feature is only replaced with --overwrite=true.
 
 from lerobot.configs import parser
 
-from lerobot_iupe.dataset_utils import run_cli
+from lerobot_iupe.cli import run_cli
 from lerobot_iupe.relabel import RelabelConfig, relabel
 
 

@@ -10,8 +10,8 @@ Expert datasets carry no `action` column unless --keep_actions=true; random data
 
 from lerobot.configs import parser
 
+from lerobot_iupe.cli import run_cli
 from lerobot_iupe.collect import CollectConfig, collect
-from lerobot_iupe.dataset_utils import run_cli
 
 
 @parser.wrap()

@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import parser
 
-from lerobot_iupe.collect import DatasetTarget
-from lerobot_iupe.dataset_utils import resolve_root, run_cli
+from lerobot_iupe.cli import run_cli
+from lerobot_iupe.data.storage import DatasetTarget, resolve_root
 from lerobot_iupe.hub import push_dataset
 
 

@@ -1,4 +1,4 @@
-"""What every dataset-writing command of the package shares: the package's own metadata file, and
+"""Where datasets live and how they are written: targets and roots, the package's own metadata file, and
 write-new-then-swap so that an existing dataset is never left half-written or damaged."""
 
 from __future__ import annotations
@@ -10,11 +10,27 @@ import os
 import shutil
 import sys
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from lerobot.utils.constants import HF_LEROBOT_HOME
+
+@dataclass
+class DatasetTarget:
+    """``--dataset.*`` of the package's commands: which dataset to write, relabel or push."""
+
+    repo_id: str = "local/iupe-demos"
+    # Local directory of the dataset; defaults to $HF_LEROBOT_HOME/<repo_id>.
+    root: str | None = None
+    private: bool = False
+
+
+def is_dataset(root: str | Path) -> bool:
+    """Whether ``root`` holds a LeRobot dataset (its ``meta/info.json``)."""
+    return (Path(root) / "meta" / "info.json").exists()
+
 
 # LeRobot's DatasetInfo drops unknown keys of meta/info.json, so the package keeps its own file beside it.
 IUPE_META_PATH = "meta/iupe.json"
@@ -37,11 +53,11 @@ def write_iupe_meta(root: str | Path, meta: dict) -> None:
     path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
 
-def check_writable(root: Path, overwrite: bool, flag: str = "--dataset.root") -> None:
+def check_writable(root: Path, overwrite: bool) -> None:
     """Refuse an existing root unless overwriting was asked for — before any work is done."""
     if root.exists() and not overwrite:
         raise FileExistsError(
-            f"{flag}={root} already exists; choose another root, or pass --overwrite=true to replace it "
+            f"--dataset.root={root} already exists; choose another root, or pass --overwrite=true to replace it "
             "(the old dataset is kept until the new one is complete)"
         )
 
@@ -120,16 +136,3 @@ def recover_interrupted_swap(final: Path) -> None:
             os.rename(path, final)
         else:
             shutil.rmtree(path, ignore_errors=True)
-
-
-class CommandError(RuntimeError):
-    """A failure outside the package's control (a hub refusing, say) that the user can act on."""
-
-
-def run_cli(main: Callable[[], object]) -> None:
-    """Run a CLI body; turn the package's input errors into one clear line and exit code 2."""
-    try:
-        main()
-    except (ValueError, FileExistsError, FileNotFoundError, CommandError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        sys.exit(2)

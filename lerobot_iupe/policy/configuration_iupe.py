@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
+from lerobot_iupe.data.storage import read_iupe_meta
+from lerobot_iupe.envs.configs import env_config_from_settings
+
 EVAL_MODES = ("argmax", "sample")
+IMAGE_BACKBONES = ("cnn", "resnet18")
 
 
 @PreTrainedConfig.register_subclass("iupe")
@@ -73,6 +78,10 @@ class IUPEConfig(PreTrainedConfig):
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
         if self.eval_mode not in EVAL_MODES:
             raise ValueError(f"--policy.eval_mode must be one of {list(EVAL_MODES)}, got {self.eval_mode!r}")
+        if self.image_backbone not in IMAGE_BACKBONES:
+            raise ValueError(
+                f"--policy.image_backbone must be one of {list(IMAGE_BACKBONES)}, got {self.image_backbone!r}"
+            )
 
     # No delta_timestamps: the policy reads s_{t+1} (and, supervised, the action) from its in-memory copy of the
     # expert dataset by each batch frame's index — LeRobot's per-item delta queries cost 12× more.
@@ -96,6 +105,10 @@ class IUPEConfig(PreTrainedConfig):
     def observation_key(self) -> str:
         return OBS_IMAGE if OBS_IMAGE in self.input_features else OBS_STATE
 
+    @property
+    def is_image(self) -> bool:
+        return self.observation_key == OBS_IMAGE
+
     def get_optimizer_preset(self) -> AdamConfig:
         return AdamConfig(lr=self.optimizer_lr, grad_clip_norm=10.0)
 
@@ -111,3 +124,25 @@ class IUPEConfig(PreTrainedConfig):
             )
         # make_policy sets output_features from the dataset's actions: {} for state-only data.
         self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(1,))}
+        # Defaults that depend on the observation kind, resolved once so that config.json records what ran.
+        self.idm_epochs = self.idm_epochs or (5 if self.is_image else 2)
+        self.idm_batch_size = self.idm_batch_size or (64 if self.is_image else 256)
+
+    def resolve_dataset(self, dataset_meta) -> None:
+        """Fill what the training dataset tells (the rollout env from its ``meta/iupe.json`` unless
+        ``--policy.env_settings`` is given; the action count from that env) and refuse what it cannot train.
+        ``dataset_meta`` is None when a checkpoint is loaded for evaluation: its config holds all of it."""
+        if dataset_meta is not None and self.env_settings is None:
+            self.env_settings = read_iupe_meta(Path(dataset_meta.root)).get("env")
+        if self.n_actions == 0:
+            if self.env_settings is None:
+                raise ValueError(
+                    "cannot tell the number of actions: the expert dataset has no meta/iupe.json; "
+                    "pass --policy.n_actions and --policy.env_settings"
+                )
+            self.n_actions = env_config_from_settings(self.env_settings).n_actions
+        if dataset_meta is not None and self.supervised and ACTION not in dataset_meta.features:
+            raise ValueError(
+                f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
+                "(collect it with --keep_actions=true)"
+            )

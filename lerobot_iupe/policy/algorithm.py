@@ -2,33 +2,10 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 
-
-@dataclass
-class Transitions:
-    """Aligned (s_t, a_t, s_{t+1}) of the same step; states are arrays or tensors with a leading N axis."""
-
-    states: np.ndarray
-    actions: np.ndarray
-    next_states: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.actions)
-
-    def take(self, index: np.ndarray) -> Transitions:
-        return Transitions(self.states[index], self.actions[index], self.next_states[index])
-
-    @staticmethod
-    def concat(parts: list[Transitions]) -> Transitions:
-        return Transitions(
-            np.concatenate([p.states for p in parts]),
-            np.concatenate([p.actions for p in parts]),
-            np.concatenate([p.next_states for p in parts]),
-        )
+from lerobot_iupe.data.transitions import Transitions
 
 
 def choose_actions(logits: torch.Tensor, explore: bool, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -112,8 +89,3 @@ def build_sampled_set(
 def performance(returns: np.ndarray, expert_return: float, random_return: float) -> float:
     """P: mean over episodes of (R − R_random) / (R_expert − R_random); 0 = random, 1 = expert."""
     return float(np.mean((np.asarray(returns) - random_return) / (expert_return - random_return)))
-
-
-def average_episodic_reward(returns: np.ndarray) -> float:
-    """AER: mean summed reward per evaluation episode."""
-    return float(np.mean(returns))

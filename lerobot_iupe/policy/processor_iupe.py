@@ -10,7 +10,7 @@ from typing import Any
 import torch
 from lerobot.processor import PolicyAction, PolicyProcessorPipeline, make_default_pre_post_processors
 
-from lerobot_iupe.configuration_iupe import IUPEConfig
+from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 
 
 def make_iupe_pre_post_processors(

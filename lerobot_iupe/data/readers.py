@@ -1,11 +1,11 @@
-"""Reading a LeRobot dataset's observations fast: whole columns from Arrow, video decoded in streaming chunks
-(one seek per chunk) instead of LeRobot's per-item access, which seeks and decodes for every frame."""
+"""Reading LeRobot datasets fast: whole columns from Arrow, video decoded in streaming chunks (one seek per chunk)
+instead of LeRobot's per-item access, which seeks and decodes for every frame; the transitions of a dataset with
+actions, and the expert dataset held in memory for training."""
 
 from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -14,6 +14,10 @@ import pyarrow as pa
 import torch
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.video_utils import decode_video_frames
+from lerobot.utils.constants import ACTION
+from torch import Tensor
+
+from lerobot_iupe.data.transitions import Transitions
 
 
 def column_array(hf_dataset, key: str) -> np.ndarray:
@@ -104,12 +108,51 @@ def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
         yield item
 
 
-def timed(chunks: Iterator[Chunk], clock: list[float]) -> Iterator[Chunk]:
-    """Add the time spent producing each chunk to ``clock[0]``."""
-    while True:
-        start = time.perf_counter()
-        chunk = next(chunks, None)
-        clock[0] += time.perf_counter() - start
-        if chunk is None:
-            return
-        yield chunk
+def observation_array(dataset: LeRobotDataset, key: str, video_backend: str = "pyav") -> np.ndarray:
+    """Every frame's observation in dataset order: float32 states, or uint8 (N, C, H, W) images."""
+    if dataset.meta.features[key]["dtype"] == "video":
+        chunks = video_chunks(dataset.meta, key, 1024, video_backend)
+        return np.concatenate([c.frames[: len(c.frames) - 1 + c.ends_episode].numpy() for c in chunks])
+    return stored_frames(dataset, key)
+
+
+def load_transitions(dataset: LeRobotDataset, key: str, video_backend: str = "pyav") -> Transitions:
+    """All (s_t, a_t, s_{t+1}) of a dataset with actions; images kept as uint8 (N, C, H, W)."""
+    episodes = column_array(dataset.hf_dataset, "episode_index")
+    actions = column_array(dataset.hf_dataset, ACTION).reshape(-1).astype(np.int64)
+    states = observation_array(dataset, key, video_backend)
+    has_next = np.flatnonzero(episodes[:-1] == episodes[1:])
+    return Transitions(states[has_next], actions[has_next], states[has_next + 1])
+
+
+class ExpertFrames:
+    """The expert dataset in memory, so that a training batch needs only its frames' ``index`` from LeRobot's
+    loader: with ``delta_timestamps`` for s_{t+1} its per-item cost is 12× higher (1.04 vs 0.08 ms measured on a
+    vector dataset) and that loading was 70–85% of a vector training run."""
+
+    def __init__(self, dataset: LeRobotDataset, key: str, with_actions: bool, device: torch.device):
+        index = column_array(dataset.hf_dataset, "index").astype(np.int64)
+        self.row_of_index = np.full(int(index.max()) + 1, -1, dtype=np.int64)
+        self.row_of_index[index] = np.arange(len(index))
+        self.episodes = column_array(dataset.hf_dataset, "episode_index").astype(np.int64)
+        self.states = torch.as_tensor(observation_array(dataset, key), device=device)
+        self.actions = None
+        if with_actions:
+            actions = column_array(dataset.hf_dataset, ACTION).reshape(-1).astype(np.int64)
+            self.actions = torch.as_tensor(actions, device=device)
+
+    def rows(self, frame_index: Tensor) -> np.ndarray:
+        """Rows of the batch's frames (LeRobot's ``index`` column: absolute frame numbers)."""
+        index = frame_index.detach().cpu().numpy().reshape(-1).astype(np.int64)
+        known = (index >= 0) & (index < len(self.row_of_index))
+        rows = np.where(known, self.row_of_index[np.clip(index, 0, len(self.row_of_index) - 1)], -1)
+        if (rows < 0).any():
+            raise KeyError("the batch holds frame indices that are not in the expert dataset")
+        return rows
+
+    def pairs(self, rows: np.ndarray) -> tuple[Tensor, Tensor]:
+        """(s_t, s_{t+1}) of these rows; LeRobot's sampler never draws an episode's last frame
+        (``drop_n_last_frames = 1``)."""
+        if rows.max() + 1 >= len(self.episodes) or (self.episodes[rows] != self.episodes[rows + 1]).any():
+            raise ValueError("a batch frame is the last of its episode (it has no successor)")
+        return self.states[rows], self.states[rows + 1]

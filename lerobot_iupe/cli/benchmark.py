@@ -11,6 +11,7 @@ Examples:
     lerobot-iupe-benchmark --envs cartpole acrobot --seeds 0 1 2
     lerobot-iupe-benchmark --tables table1 --jobs 2         # two runs at a time, one thread each
     lerobot-iupe-benchmark --quick                          # smoke test: CartPole + Maze 3×3, tiny budgets
+    lerobot-iupe-benchmark --tables ablation --from benchmarks   # fresh clone: train only what results.json lacks
 """
 
 import argparse
@@ -19,9 +20,17 @@ import sys
 import time
 from pathlib import Path
 
-from lerobot_iupe.benchmark import ABLATION, LOW_DATA, PRESETS, Benchmark, write_report
+from lerobot_iupe.benchmark import (
+    ABLATION,
+    LOW_DATA,
+    LOW_DATA_METHODS,
+    PRESETS,
+    TABLE1_METHODS,
+    Benchmark,
+    write_report,
+)
 
-METHODS = ["expert", "random", "bc", "bco", "iupe"]
+METHODS = TABLE1_METHODS
 
 
 def positive_int(text: str) -> int:
@@ -45,20 +54,30 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="CartPole + Maze 3×3, 1 seed, 10 episodes, tiny runs")
     parser.add_argument("--work", default="outputs/benchmark", help="datasets, runs and runs.jsonl")
     parser.add_argument("--out", default="benchmarks", help="where results.md/json and the plots go")
+    parser.add_argument(
+        "--from", dest="from_dir", metavar="DIR",
+        help="first add the runs and calls of a committed report (DIR/results.json, DIR/calls.json) to --work, so "
+        "only runs missing from it are trained (e.g. --from=benchmarks on a fresh clone)",
+    )  # fmt: skip
     args = parser.parse_args()
+    if args.from_dir and not (Path(args.from_dir) / "results.json").exists():
+        parser.error(f"--from: {args.from_dir} holds no results.json (a benchmark call's --out, e.g. benchmarks)")
     if args.quick:
         args.envs = [e for e in args.envs if e in ("cartpole", "maze3")] or ["cartpole"]
         args.seeds, args.eval_episodes = args.seeds[:1], min(args.eval_episodes, 10)
     start = time.perf_counter()
     bench = Benchmark(Path(args.work), eval_episodes=args.eval_episodes, quick=args.quick)
     try:
+        if args.from_dir:
+            added = bench.seed_from(Path(args.from_dir))
+            print(f"[benchmark] {added} records added from {args.from_dir}/results.json", flush=True)
         requests = []
         if "table1" in args.tables:
             for env in args.envs:
                 requests.append(dict(table="table1", name=env, preset=PRESETS[env], methods=args.methods))
         if "lowdata" in args.tables:
             for env, preset in LOW_DATA.items():
-                requests.append(dict(table="lowdata", name=env, preset=preset, methods=["bco", "S", "E", "SE", "iupe"]))
+                requests.append(dict(table="lowdata", name=env, preset=preset, methods=LOW_DATA_METHODS))
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))

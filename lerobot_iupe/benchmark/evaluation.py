@@ -1,0 +1,72 @@
+"""Evaluation of the benchmark's runs: a checkpoint exactly as ``lerobot-eval`` evaluates it, a built-in agent on
+the same seeds and layouts, and what a training run recorded about itself."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.configs import PreTrainedConfig
+from lerobot.envs import close_envs, make_env, make_env_pre_post_processors
+from lerobot.envs.configs import EnvConfig
+from lerobot.policies import make_policy, make_pre_post_processors
+from lerobot.scripts.lerobot_eval import eval_policy_all
+from lerobot.utils.random_utils import set_seed
+
+from lerobot_iupe.experts import reference_returns
+from lerobot_iupe.policy.training import CYCLES_FILE
+
+EVAL_SEED = 500_000  # evaluation seeds/layouts 500000…: never used by data (0…, 1000…) or rollouts (≥ 1e6)
+
+
+@torch.no_grad()
+def evaluate_checkpoint(
+    checkpoint: Path, env_cfg: EnvConfig, episodes: int, eval_mode: str = "argmax", seed: int = EVAL_SEED
+) -> dict:
+    """What lerobot-eval does (make_env, make_policy, LeRobot's processors, eval_policy_all), minus videos;
+    ``eval_mode`` is ``--policy.eval_mode``."""
+    set_seed(seed)
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path = checkpoint
+    policy_cfg.device = "cpu"
+    policy_cfg.eval_mode = eval_mode
+    envs = make_env(env_cfg, n_envs=min(episodes, 50), use_async_envs=False)
+    policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg).eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy_cfg=policy_cfg,
+        pretrained_path=str(checkpoint),
+        preprocessor_overrides={"device_processor": {"device": "cpu"}},
+    )
+    env_pre, env_post = make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
+    info = eval_policy_all(
+        envs=envs, policy=policy, env_preprocessor=env_pre, env_postprocessor=env_post, preprocessor=preprocessor,
+        postprocessor=postprocessor, n_episodes=episodes, start_seed=seed,
+    )  # fmt: skip
+    close_envs(envs)
+    return info["overall"]
+
+
+def evaluate_agent(agent: str, env_cfg: EnvConfig, episodes: int) -> dict:
+    """A built-in agent on the evaluation seeds (the same envs, seeds and layouts as ``evaluate_checkpoint``).
+    Not through eval_policy_all: the maze expert reads the simulator's state, which a LeRobot policy cannot."""
+    returns = reference_returns(env_cfg, agent, episodes, seed=EVAL_SEED)
+    return {"avg_sum_reward": float(returns.mean()), "pc_success": None}
+
+
+DATA_S = re.compile(r"data_s:([\d.]+)")
+
+
+def read_training_run(checkpoint: Path, output: str, steps: int) -> tuple[list[dict], dict]:
+    """The run's cycle records (``iupe_cycles.jsonl`` beside the checkpoint) and its time breakdown."""
+    path = checkpoint / CYCLES_FILE
+    cycles = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    data_avg = [float(x) for x in DATA_S.findall(output)]  # LeRobot's own per-step data-loading average
+    timing = {
+        "rollouts_s": cycles[-1]["rollouts_s"] if cycles else 0.0,
+        "idm_s": cycles[-1]["idm_s"] if cycles else 0.0,
+        "data_loading_s": float(np.mean(data_avg)) * steps if data_avg else 0.0,
+    }
+    return cycles, timing

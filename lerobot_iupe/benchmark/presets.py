@@ -1,0 +1,158 @@
+"""What the benchmark runs: per env, the datasets to collect and the training budget of every method (typed;
+turned into command-line flags only where a subprocess is started), the methods' switches, and the paper's
+reference numbers."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+
+from lerobot.envs.configs import EnvConfig
+
+# The paper's Table 1 (P, AER) and Table 2 (Maze 10×10, P, AER).
+PAPER_TABLE1 = {
+    "expert": {"cartpole": (1.0, 442.628), "acrobot": (1.0, -110.109), "mountaincar": (1.0, -147.265),
+               "maze3": (1.0, 0.963), "maze5": (1.0, 0.970), "maze10": (1.0, 0.981)},
+    "random": {"cartpole": (0.0, 18.7), "acrobot": (0.0, -482.6), "mountaincar": (0.0, -200.0),
+               "maze3": (0.0, 0.557), "maze5": (0.0, 0.166), "maze10": (0.0, -0.415)},
+    "bc": {"cartpole": (1.135, 500.0), "acrobot": (1.071, -83.59), "mountaincar": (1.56, -117.72),
+           "maze3": (-1.207, 0.18), "maze5": (-0.921, -0.507), "maze10": (-0.47, -1.0)},
+    "bco": {"cartpole": (1.135, 500.0), "acrobot": (0.98, -117.6), "mountaincar": (0.948, -150.0),
+            "maze3": (0.883, 0.927), "maze5": (-0.112, 0.104), "maze10": (-0.416, -0.941)},
+    "iupe": {"cartpole": (1.135, 500.0), "acrobot": (1.086, -78.1), "mountaincar": (1.314, -130.7),
+             "maze3": (1.361, 0.927), "maze5": (1.0, 0.971), "maze10": (1.0, 0.981)},
+}  # fmt: skip
+PAPER_TABLE2 = {
+    "bco": (-0.416, -0.941), "A": (-0.415, -0.94), "S": (0.534, 0.348), "E": (0.734, 0.605),
+    "SA": (0.367, 0.088), "EA": (-0.407, -0.921), "SE": (0.943, 0.901), "iupe": (1.0, 0.981),
+}  # fmt: skip
+ABLATION = ["bco", "A", "S", "E", "SA", "EA", "SE", "iupe"]  # letters: Sampling, Exploration, Attention on
+TABLE1_METHODS = ["expert", "random", "bc", "bco", "iupe"]
+LOW_DATA_METHODS = ["bco", "S", "E", "SE", "iupe"]
+
+
+@dataclass(frozen=True)
+class TrainBudget:
+    """lerobot-train's budget of a trained method; ``policy`` holds further ``--policy.*`` settings."""
+
+    steps: int
+    batch_size: int
+    cycle_steps: int
+    policy: dict[str, str] = field(default_factory=dict)
+
+    def flags(self) -> list[str]:
+        return [
+            f"--steps={self.steps}",
+            f"--batch_size={self.batch_size}",
+            f"--policy.cycle_steps={self.cycle_steps}",
+            *[f"--policy.{name}={value}" for name, value in self.policy.items()],
+        ]
+
+
+@dataclass(frozen=True)
+class DataSettings:
+    """How the datasets of an env are collected: episode counts and lerobot-iupe-collect settings."""
+
+    expert_episodes: int
+    random_episodes: int
+    random_start: bool = False  # maze: random pre-demonstrations start from a random cell
+    random_max_steps: int = 0  # maze: step cap of the random pre-demonstrations (0: the env's)
+    video: bool = True  # maze: MP4 video (true) or PNG frames in the parquet files (false)
+
+    def random_flags(self) -> list[str]:
+        flags = ["--random_start=true"] if self.random_start else []
+        return flags + ([f"--env.max_steps={self.random_max_steps}"] if self.random_max_steps else [])
+
+    def data_flags(self) -> list[str]:
+        return [] if self.video else ["--video=false"]
+
+
+@dataclass(frozen=True)
+class EnvPreset:
+    env: dict  # EnvConfig fields, "type" included
+    data: DataSettings
+    train: TrainBudget
+
+    @property
+    def is_maze(self) -> bool:
+        return self.env["type"] == "maze"
+
+    def env_config(self, layouts: str | None = None) -> EnvConfig:
+        fields = {k: v for k, v in self.env.items() if k != "type"}
+        if layouts:
+            fields["layouts"] = layouts
+        return EnvConfig.get_choice_class(self.env["type"])(**fields)
+
+    def env_flags(self) -> list[str]:
+        return [f"--env.{k}={v}" for k, v in self.env.items()]
+
+    @property
+    def eval_modes(self) -> tuple[str, ...]:
+        """Every maze checkpoint is evaluated both ways (an argmax policy that bumps into a wall stays put until
+        the step cap); vector policies by argmax."""
+        return ("argmax", "sample") if self.is_maze else ("argmax",)
+
+    @property
+    def layouts(self) -> list[str | None]:
+        """Evaluation layout sets: mazes on demonstration and held-out layouts."""
+        return ["demo", "heldout"] if self.is_maze else [None]
+
+    def data_key(self, quick: bool) -> str:
+        """Short hash of everything that determines the datasets: a changed preset collects new ones."""
+        data = self.data
+        return digest(
+            [self.env, data.expert_episodes, data.random_episodes, data.random_flags(), data.data_flags(), quick]
+        )
+
+
+def digest(value) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True).encode()).hexdigest()[:10]
+
+
+VECTOR_BUDGET = TrainBudget(steps=400, batch_size=128, cycle_steps=100)
+# Mazes at 3 px per maze block (2N+1 blocks a side; 10×10 at 2 px) stored as PNG frames: the CNN's cost grows with
+# the pixel count (IDM step of 64 at 21 px 15 ms, at 63 px 61 ms); LeRobot's loader reads a PNG 8x faster than video.
+PRESETS = {
+    "cartpole": EnvPreset({"type": "cartpole"}, DataSettings(10, 400), VECTOR_BUDGET),
+    "acrobot": EnvPreset({"type": "acrobot"}, DataSettings(10, 40), VECTOR_BUDGET),
+    "mountaincar": EnvPreset(
+        {"type": "mountaincar"}, DataSettings(10, 100), TrainBudget(1000, 128, 200, {"optimizer_lr": "1e-2"})
+    ),
+    "maze3": EnvPreset(
+        {"type": "maze", "size": 3, "image_size": 21},
+        DataSettings(100, 400, random_start=True, random_max_steps=15, video=False),
+        TrainBudget(1000, 64, 200),
+    ),
+    "maze5": EnvPreset(
+        {"type": "maze", "size": 5, "image_size": 33},
+        DataSettings(100, 400, random_start=True, random_max_steps=25, video=False),
+        TrainBudget(1500, 64, 250),
+    ),
+    "maze10": EnvPreset(
+        {"type": "maze", "size": 10, "image_size": 42},
+        DataSettings(100, 400, random_start=True, random_max_steps=60, video=False),
+        TrainBudget(2000, 64, 250, {"idm_epochs": "2"}),
+    ),
+}
+# Low data: one expert episode and about 1,000 pre-demonstration transitions.
+LOW_DATA = {
+    "cartpole": EnvPreset({"type": "cartpole"}, DataSettings(1, 45), TrainBudget(200, 64, 25)),
+    "acrobot": EnvPreset({"type": "acrobot"}, DataSettings(1, 2), TrainBudget(200, 64, 25)),
+    "mountaincar": EnvPreset({"type": "mountaincar"}, DataSettings(1, 5), TrainBudget(400, 64, 50)),
+}
+QUICK_BUDGET = TrainBudget(20, 32, 10, {"rollout_episodes": "4"})
+
+
+def method_flags(method: str) -> list[str]:
+    """lerobot-train flags of a method; ablation variants name the mechanisms that are on."""
+    if method == "bc":
+        return ["--policy.supervised=true"]
+    if method == "iupe":
+        return []
+    on = "" if method == "bco" else method
+    return [
+        f"--policy.sampling={'S' in on}".lower(),
+        f"--policy.exploration={'E' in on}".lower(),
+        f"--policy.attention={'A' in on}".lower(),
+    ]

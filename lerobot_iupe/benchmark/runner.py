@@ -1,0 +1,300 @@
+"""The benchmark's runner: the paper's Tables 1 and 2 on this package — Expert, Random, BC, BCO(α) and IUPE (and
+the ablation variants), each trained through ``lerobot-train`` and evaluated with LeRobot's own evaluation code
+(``eval_policy_all``, what ``lerobot-eval`` runs, without its video rendering).
+
+Every finished run is appended to ``<work>/runs.jsonl`` at once, so an interrupted benchmark resumes where it
+stopped; the report (``report.py``) is rebuilt from all records on every call.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from tqdm.auto import tqdm
+
+from lerobot_iupe.benchmark.evaluation import evaluate_agent, evaluate_checkpoint, read_training_run
+from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags
+from lerobot_iupe.data.storage import read_iupe_meta
+from lerobot_iupe.experts import reference_returns
+from lerobot_iupe.policy.algorithm import performance
+
+BIN = Path(sys.executable).parent
+CHECKPOINT = "checkpoints/last/pretrained_model"
+
+
+STEP = re.compile(r"\bstep:(\d+(?:\.\d+)?)([KM]?)\b")
+
+
+def run_cli(
+    *args: str, log: Path | None = None, quiet: bool = False, steps: int = 0, threads: int = 0, label: str = ""
+) -> str:
+    """Run a console script; its output is returned and written to ``log``. By default its command line is printed;
+    with ``quiet`` nothing is printed but, when ``steps`` > 0, a progress bar over lerobot-train's logged steps.
+    ``threads`` > 0 caps its CPU threads (OMP_NUM_THREADS)."""
+    if not quiet:
+        print("$", shlex.join(args), flush=True)
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads)} if threads else None
+    process = subprocess.Popen(
+        [str(BIN / args[0]), *args[1:]], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+    )
+    bar = tqdm(total=steps, desc=label or args[0], unit="step", disable=not (quiet and steps), leave=True)
+    lines = []
+    for line in process.stdout:
+        lines.append(line)
+        if match := STEP.search(line):
+            value = float(match.group(1)) * {"": 1, "K": 1_000, "M": 1_000_000}[match.group(2)]
+            bar.update(int(value) - bar.n)
+    output = "".join(lines)
+    if log is not None:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text(output)
+    if process.wait() != 0:
+        bar.close()
+        raise RuntimeError(f"{args[0]} failed ({process.returncode}); see {log}\n{output[-2000:]}")
+    bar.update(bar.total - bar.n)
+    bar.close()
+    return output
+
+
+def collect_datasets(
+    name: str, preset: EnvPreset, data_dir: Path, quick: bool = False, threads: int = 0, quiet: bool = False
+) -> dict[str, Path]:
+    """Expert (state only), the same expert episodes with actions (for BC), random pre-demonstrations."""
+    paths = {}
+    name = f"{name}-{preset.data_key(quick)}"
+    n_expert, n_random = preset.data.expert_episodes, preset.data.random_episodes
+    if quick:
+        n_expert, n_random = min(n_expert, 5), min(n_random, 60)
+    for kind, agent, episodes, extra in [
+        ("expert", "expert", n_expert, ["--seed=0"]),
+        ("expert-actions", "expert", n_expert, ["--seed=0", "--keep_actions=true"]),
+        ("random", "random", n_random, ["--seed=1000", *preset.data.random_flags()]),
+    ]:
+        root = data_dir / f"{name}-{kind}"
+        if not (root / "meta" / "iupe.json").exists():
+            run_cli(
+                "lerobot-iupe-collect", *preset.env_flags(), f"--agent={agent}", f"--episodes={episodes}", *extra,
+                *preset.data.data_flags(),
+                f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", "--overwrite=true",
+                threads=threads, quiet=quiet, log=data_dir / "logs" / f"{root.name}.log",
+            )  # fmt: skip
+        paths[kind] = root
+    return paths
+
+
+@dataclass
+class Run:
+    """One cell entry to produce: a method (and training seed) on an env's datasets."""
+
+    table: str
+    name: str
+    preset: EnvPreset
+    method: str
+    seed: int | None
+    data: dict[str, Path]
+    references: dict[str | None, tuple[float, float]]  # eval layouts → (R_expert, R_random)
+    quick: bool = False
+
+    @property
+    def train_flags(self) -> list[str]:
+        return [*self.budget.flags(), *method_flags(self.method)]
+
+    @property
+    def budget(self):
+        return QUICK_BUDGET if self.quick else self.preset.train
+
+    def config_key(self, eval_episodes: int) -> str:
+        """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
+        train = [] if self.method in ("expert", "random") else self.train_flags
+        return digest([self.preset.data_key(self.quick), train, eval_episodes, self.preset.eval_modes])
+
+    @property
+    def cost(self) -> float:
+        """Rough relative duration (training steps × pixels), to start the longest runs first."""
+        if self.method in ("expert", "random"):
+            return 0.0
+        return (
+            self.preset.train.steps * self.preset.env.get("image_size", 1) ** 2 * (0.3 if self.method == "bc" else 1.0)
+        )
+
+
+@dataclass
+class Benchmark:
+    work: Path
+    eval_episodes: int = 100
+    quick: bool = False
+    quiet: bool = False  # the demo: progress bars instead of command lines; every output is in a log file
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    @property
+    def records_file(self) -> Path:
+        return self.work / "runs.jsonl"
+
+    @property
+    def calls_file(self) -> Path:
+        return self.work / "calls.jsonl"
+
+    def log_call(self, command: str, seconds: float) -> list[dict]:
+        """Record one call of the benchmark (its command line and wall-clock); return all calls so far."""
+        self.work.mkdir(parents=True, exist_ok=True)
+        with self.calls_file.open("a") as f:
+            f.write(json.dumps({"command": command, "seconds": seconds}) + "\n")
+        return [json.loads(line) for line in self.calls_file.read_text().splitlines() if line.strip()]
+
+    def records(self) -> list[dict]:
+        if not self.records_file.exists():
+            return []
+        return [json.loads(line) for line in self.records_file.read_text().splitlines() if line.strip()]
+
+    def seed_from(self, results_dir: Path) -> int:
+        """Add the records of a committed report (``results.json``, and its calls from ``calls.json``) to this work
+        folder, so a call resumes from published runs instead of training them again. Returns how many records
+        were new; a record already present (same fields) is not added twice."""
+        known = {json.dumps(r, sort_keys=True) for r in self.records()}
+        published = json.loads((results_dir / "results.json").read_text())
+        new = [r for r in published if json.dumps(r, sort_keys=True) not in known]
+        for record in new:
+            self._save(record)
+        calls = results_dir / "calls.json"
+        if calls.exists() and not self.calls_file.exists():
+            self.calls_file.write_text("".join(json.dumps(c) + "\n" for c in json.loads(calls.read_text())))
+        return len(new)
+
+    def _save(self, record: dict) -> None:
+        self.work.mkdir(parents=True, exist_ok=True)
+        with self.records_file.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    def _done(self, run: Run) -> bool:
+        key = (run.table, run.name, run.method, run.seed, run.config_key(self.eval_episodes))
+        return any((r["table"], r["env"], r["method"], r["seed"], r.get("config")) == key for r in self.records())
+
+    def references(self, preset: EnvPreset, data: dict[str, Path]) -> dict[str | None, tuple[float, float]]:
+        """Per evaluation layout set: R_expert = mean return of the expert demonstrations (held-out maze layouts:
+        of the expert on 100 of them), R_random = uniform-random policy, 100 episodes (seeds 100000…)."""
+        references = {}
+        for layouts in preset.layouts:
+            env_cfg = preset.env_config(layouts)
+            if layouts == "heldout":
+                expert = float(reference_returns(env_cfg, "expert", 100).mean())
+            else:
+                expert = read_iupe_meta(data["expert"])["mean_return"]
+            references[layouts] = (expert, float(reference_returns(env_cfg, "random", 100).mean()))
+        return references
+
+    def plan(
+        self,
+        table: str,
+        name: str,
+        preset: EnvPreset,
+        methods: list[str],
+        seeds: list[int],
+        threads: int = 0,
+    ) -> list[Run]:
+        """The unrecorded runs of ``methods`` × ``seeds`` (a run is recorded when a row with its table, env, method,
+        seed and configuration key exists), collecting the datasets and measuring the references first."""
+        data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet)
+        references = self.references(preset, data)
+        runs = [
+            Run(table, name, preset, method, seed, data, references, self.quick)
+            for method in methods
+            for seed in ([None] if method in ("expert", "random") else seeds)
+        ]
+        return [run for run in runs if not self._done(run)]
+
+    def plan_all(self, requests: list[dict], jobs: int = 1) -> list[Run]:
+        """``plan(**request)`` for each request, ``jobs`` datasets collected at a time; requests that share
+        datasets are planned one after the other, so that no dataset is written twice at once."""
+        by_data: dict[str, list[dict]] = {}
+        for request in requests:
+            key = f"{request['name']}-{request['preset'].data_key(self.quick)}"
+            by_data.setdefault(key, []).append(request)
+        threads = 1 if jobs > 1 else 0
+
+        def plan_group(group: list[dict]) -> list[Run]:
+            return [run for request in group for run in self.plan(**request, threads=threads)]
+
+        with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            return [run for runs in pool.map(plan_group, by_data.values()) for run in runs]
+
+    def execute(self, runs: list[Run], jobs: int = 1) -> None:
+        """Train and evaluate ``runs``, ``jobs`` at a time (one CPU thread each when ``jobs`` > 1)."""
+        if jobs <= 1:
+            for run in runs:
+                self._execute(run, threads=0)
+            return
+        torch.set_num_threads(1)
+        # Largest runs first so that the last ones to start are short (longest-processing-time order).
+        runs = sorted(runs, key=lambda run: -run.cost)
+        with ThreadPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(self._execute, run, 1) for run in runs]
+            try:
+                for future in as_completed(futures):
+                    future.result()
+            except BaseException:
+                pool.shutdown(wait=True, cancel_futures=True)
+                raise
+
+    def _execute(self, run: Run, threads: int) -> None:
+        if not self.quiet:
+            print(f"[benchmark] {run.table} {run.name} {run.method} seed={run.seed}", flush=True)
+        preset, episodes = run.preset, self.eval_episodes
+        train_seconds, cycles, timing = 0.0, [], {}
+        if run.method in ("expert", "random"):
+            with self._lock:
+                evals = {
+                    (lay, None): evaluate_agent(run.method, preset.env_config(lay), episodes) for lay in preset.layouts
+                }
+        else:
+            out = self.work / "runs" / run.table / run.name / f"{run.method}-s{run.seed}"
+            shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
+            expert = run.data["expert-actions" if run.method == "bc" else "expert"]
+            start = time.perf_counter()
+            output = run_cli(
+                "lerobot-train", "--policy.type=iupe", f"--dataset.repo_id=local/{expert.name}",
+                f"--dataset.root={expert}", "--dataset.video_backend=pyav",
+                f"--policy.pre_demos_repo_id=local/{run.data['random'].name}",
+                f"--policy.pre_demos_root={run.data['random']}", f"--output_dir={out}", "--policy.device=cpu",
+                "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
+                f"--seed={run.seed}", *run.train_flags,
+                log=out.with_suffix(".log"), quiet=self.quiet, threads=threads,
+                steps=run.budget.steps, label=f"train {run.method} {run.name} seed {run.seed}",
+            )  # fmt: skip
+            train_seconds = time.perf_counter() - start
+            cycles, timing = read_training_run(out / CHECKPOINT, output, run.budget.steps)
+            evals = {}
+            # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
+            with self._lock:
+                for lay in preset.layouts:
+                    for mode in preset.eval_modes:
+                        start = time.perf_counter()
+                        env_cfg = preset.env_config(lay)
+                        evals[lay, mode] = evaluate_checkpoint(out / CHECKPOINT, env_cfg, episodes, mode)
+                        timing[f"evaluation_{lay or 'env'}_{mode}_s"] = time.perf_counter() - start
+        with self._lock:
+            for (lay, mode), overall in evals.items():
+                aer = overall["avg_sum_reward"]
+                r_expert, r_random = run.references[lay]
+                self._save(
+                    {
+                        "table": run.table, "env": run.name, "method": run.method, "seed": run.seed,
+                        "config": run.config_key(episodes), "eval_layouts": lay, "eval_mode": mode,
+                        "P": performance([aer], r_expert, r_random), "AER": aer,
+                        "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
+                        "train_seconds": train_seconds,
+                        "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
+                        "timing": timing, "cycles": cycles,
+                    }
+                )  # fmt: skip

@@ -1,0 +1,153 @@
+"""The networks of the IUPE policy: state and image encoders with SAGAN-style self-attention, and the action
+heads. A head turns encoder features into the parameters of a distribution over actions and knows how to score,
+draw and summarise actions of that distribution; ``CategoricalHead`` serves discrete action spaces, and a head for
+continuous actions is its sibling with the same methods."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from torch import Tensor, nn
+
+from lerobot_iupe.policy.algorithm import choose_actions
+
+
+class TokenSelfAttention(nn.Module):
+    """SAGAN-style self-attention over tokens (B, L, d): x + γ · softmax(QKᵀ/√d) V, γ learned from 0."""
+
+    def __init__(self, dim: int):
+        super().__init__()
+        self.query, self.key, self.value = nn.Linear(dim, dim), nn.Linear(dim, dim), nn.Linear(dim, dim)
+        self.gamma = nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: Tensor) -> Tensor:
+        scores = self.query(x) @ self.key(x).transpose(1, 2) / x.shape[-1] ** 0.5
+        return x + self.gamma * (torch.softmax(scores, dim=-1) @ self.value(x))
+
+
+class SpatialSelfAttention(nn.Module):
+    """SAGAN self-attention over the positions of a feature map (B, C, H, W), γ learned from 0."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        inner = max(channels // 8, 1)
+        self.query, self.key = nn.Conv2d(channels, inner, 1), nn.Conv2d(channels, inner, 1)
+        self.value = nn.Conv2d(channels, channels, 1)
+        self.gamma = nn.Parameter(torch.zeros(1))
+
+    def forward(self, x: Tensor) -> Tensor:
+        b, c, h, w = x.shape
+        q = self.query(x).flatten(2).transpose(1, 2)
+        k = self.key(x).flatten(2)
+        attn = torch.softmax(q @ k, dim=-1)
+        out = (self.value(x).flatten(2) @ attn.transpose(1, 2)).view(b, c, h, w)
+        return x + self.gamma * out
+
+
+class VectorEncoder(nn.Module):
+    """One token per state feature (value · w_i + b_i), optional self-attention across features, then an MLP."""
+
+    def __init__(self, n_features: int, token_dim: int, hidden: int, attention: bool):
+        super().__init__()
+        self.token_weight = nn.Parameter(torch.randn(n_features, token_dim) * 0.5)
+        self.token_bias = nn.Parameter(torch.zeros(n_features, token_dim))
+        self.attention = TokenSelfAttention(token_dim) if attention else nn.Identity()
+        self.mlp = nn.Sequential(
+            nn.Linear(n_features * token_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        tokens = x.unsqueeze(-1) * self.token_weight + self.token_bias
+        return self.mlp(self.attention(tokens).flatten(1))
+
+
+class ResidualBlock(nn.Module):
+    def __init__(self, cin: int, cout: int, stride: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1)
+        self.skip = nn.Conv2d(cin, cout, 1, stride) if (cin != cout or stride != 1) else nn.Identity()
+
+    def forward(self, x: Tensor) -> Tensor:
+        return F.relu(self.conv2(F.relu(self.conv1(x))) + self.skip(x))
+
+
+class ImageEncoder(nn.Module):
+    """Compact residual CNN (CPU-sized at 64×64) with self-attention after the first and second stages."""
+
+    def __init__(self, in_channels: int, width: int, hidden: int, attention: bool):
+        super().__init__()
+        self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 3, 2, 1), nn.ReLU())
+        self.stage1 = ResidualBlock(width, width, 2)
+        self.attention1 = SpatialSelfAttention(width) if attention else nn.Identity()
+        self.stage2 = ResidualBlock(width, 2 * width, 2)
+        self.attention2 = SpatialSelfAttention(2 * width) if attention else nn.Identity()
+        self.stage3 = ResidualBlock(2 * width, 2 * width, 1)
+        self.pool = nn.AdaptiveAvgPool2d(4)
+        self.head = nn.Sequential(nn.Linear(2 * width * 16, hidden), nn.ReLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = self.attention1(self.stage1(self.stem(x)))
+        x = self.stage3(self.attention2(self.stage2(x)))
+        return self.head(self.pool(x).flatten(1))
+
+
+class ResNet18Encoder(nn.Module):
+    """torchvision ResNet-18 (random init; no download at run time) with self-attention after layer1 and layer2,
+    as in the paper's image setting. Meant for GPU runs at larger resolutions (e.g. 224 px)."""
+
+    def __init__(self, in_channels: int, hidden: int, attention: bool):
+        super().__init__()
+        from torchvision.models import resnet18
+
+        net = resnet18(weights=None)
+        if in_channels != 3:
+            net.conv1 = nn.Conv2d(in_channels, 64, 7, 2, 3, bias=False)
+        self.stem = nn.Sequential(net.conv1, net.bn1, net.relu, net.maxpool)
+        self.layer1, self.layer2, self.layer3, self.layer4 = net.layer1, net.layer2, net.layer3, net.layer4
+        self.attention1 = SpatialSelfAttention(64) if attention else nn.Identity()
+        self.attention2 = SpatialSelfAttention(128) if attention else nn.Identity()
+        self.head = nn.Sequential(nn.Linear(512, hidden), nn.ReLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = self.attention1(self.layer1(self.stem(x)))
+        x = self.layer4(self.layer3(self.attention2(self.layer2(x))))
+        return self.head(torch.flatten(F.adaptive_avg_pool2d(x, 1), 1))
+
+
+def make_image_encoder(backbone: str, in_channels: int, width: int, hidden: int, attention: bool) -> nn.Module:
+    """``backbone`` is validated by the config (``--policy.image_backbone``)."""
+    if backbone == "resnet18":
+        return ResNet18Encoder(in_channels, hidden, attention)
+    return ImageEncoder(in_channels, width, hidden, attention)
+
+
+class CategoricalHead(nn.Linear):
+    """Logits over ``n_actions`` discrete actions (a linear layer, so checkpoints keep ``<head>.weight/.bias``)."""
+
+    def __init__(self, hidden: int, n_actions: int):
+        super().__init__(hidden, n_actions)
+
+    def loss(self, output: Tensor, actions: Tensor) -> Tensor:
+        """Negative log-likelihood of the actions (cross-entropy)."""
+        return F.cross_entropy(output, actions)
+
+    def choose(self, output: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
+        """One action per row: a draw from the distribution when exploring, else its mode (argmax)."""
+        return choose_actions(output, explore, generator)
+
+    def mode(self, output: Tensor) -> Tensor:
+        return output.argmax(dim=-1)
+
+    def spread(self, output: Tensor, chosen: Tensor) -> float:
+        """How far drawn actions are from the mode: the share of non-MAP actions (the paper's self-decaying
+        exploration rate)."""
+        return float((chosen != self.mode(output)).float().mean())
+
+    def likelihood(self, output: Tensor, chosen: Tensor) -> Tensor:
+        """Probability of each chosen action (the labeller's confidence)."""
+        return torch.softmax(output.float(), dim=-1).gather(1, chosen[:, None])[:, 0]
+
+    def as_float_action(self, actions: Tensor) -> Tensor:
+        """LeRobot's env loop sends float actions of shape (B, action_dim): the id as a float, (B, 1)."""
+        return actions.unsqueeze(-1).float()

@@ -1,0 +1,330 @@
+"""The IUPE cycle, top to bottom, as it runs inside ``lerobot-train`` (one optimizer step = one policy step on an
+expert batch; ``update()`` after each step is LeRobot's only in-loop hook):
+
+1. ``start`` (first step): check the inputs, load the pre-demonstrations I_pre, I^s = I_pre, train the IDM on it;
+2. ``labels`` (every step): the IDM labels the expert pairs (s_t, s_{t+1}) — one draw per row when exploring, the
+   mode otherwise — and the policy model takes a step on those labels;
+3. ``end_cycle`` (every ``cycle_steps`` steps): roll out the policy, record (s_t, a_t, s_{t+1}) of the same step
+   and whether the goal was reached, select the model by goal success, rebuild I^s by the sampling rule (or, for
+   BCO(α), I_pre plus the rollouts) and retrain the IDM on it.
+
+Everything the cycle needs to go on exactly where it stopped is a ``TrainingState``, saved beside the checkpoint
+(``iupe_training_state.pt``, plain tensors and numbers) with one record per cycle (``iupe_cycles.jsonl``).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.utils.constants import ACTION
+from torch import Tensor
+
+from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
+from lerobot_iupe.data.readers import ExpertFrames, load_transitions
+from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
+from lerobot_iupe.data.transitions import Transitions
+from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.envs.rollout import run_episodes
+from lerobot_iupe.policy.algorithm import build_sampled_set, success_action_distribution
+
+if TYPE_CHECKING:
+    from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
+
+log = logging.getLogger("lerobot_iupe")
+TRAINING_STATE_FILE = "iupe_training_state.pt"
+CYCLES_FILE = "iupe_cycles.jsonl"
+
+
+@dataclass
+class TrainingState:
+    """What the cycle carries from step to step; all of it but ``pre`` is saved beside a checkpoint."""
+
+    seed: int
+    rank: int
+    pre: Transitions
+    sampled_set_size: int
+    rng: np.random.Generator
+    torch_rng: torch.Generator | None  # None where the policy runs on another device (then: the global one)
+    idm_optimizer: torch.optim.Optimizer
+    step: int = 0
+    cycle: int = 0
+    best_success: float = -1.0
+    rollouts_s: float = 0.0  # cumulative seconds, for the benchmark's time breakdown
+    idm_s: float = 0.0
+    cycles: list[dict] = field(default_factory=list)
+
+    def saved(self, latest_weights: dict[str, Tensor]) -> dict:
+        return {
+            "step": self.step,
+            "cycle": self.cycle,
+            "best_success": self.best_success,
+            "seed": self.seed,
+            "rng": self.rng.bit_generator.state,
+            "torch_rng": None if self.torch_rng is None else self.torch_rng.get_state(),
+            "idm_optimizer": self.idm_optimizer.state_dict(),
+            "latest_weights": latest_weights,
+            "seconds": {"rollouts": self.rollouts_s, "idm": self.idm_s},
+            "cycles": self.cycles,
+        }
+
+    def restore(self, saved: dict) -> None:
+        self.step, self.cycle, self.best_success, self.seed = (
+            saved["step"], saved["cycle"], saved["best_success"], saved["seed"],
+        )  # fmt: skip
+        self.rollouts_s, self.idm_s = saved["seconds"]["rollouts"], saved["seconds"]["idm"]
+        self.rng.bit_generator.state = saved["rng"]
+        if self.torch_rng is not None and saved["torch_rng"] is not None:
+            self.torch_rng.set_state(saved["torch_rng"])
+        self.idm_optimizer.load_state_dict(saved["idm_optimizer"])
+        self.cycles = list(saved["cycles"])
+
+
+class IUPETrainer:
+    """Runs the cycle on ``policy`` (its IDM and policy model) with the expert dataset ``dataset_meta``."""
+
+    def __init__(self, policy: IUPEPolicy, dataset_meta: LeRobotDatasetMetadata, seed: int):
+        self.policy, self.config, self.dataset_meta, self.seed = policy, policy.config, dataset_meta, seed
+        self.state: TrainingState | None = None
+        self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
+        self.selected_weights: dict[str, Tensor] | None = None  # best rollout success so far (latest on ties)
+        self.envs: list = []  # rollout envs, created once and reused by every cycle
+        self.layouts: list[int] = []  # maze: the expert dataset's layout ids, cycled through by rollouts
+        self._expert: ExpertFrames | None = None
+
+    @property
+    def cycles(self) -> list[dict]:
+        return self.state.cycles if self.state else []
+
+    @property
+    def device(self) -> torch.device:
+        return self.policy.device_of_weights
+
+    # ------------------------------------------------------------ 1. start
+
+    def check_inputs(self) -> LeRobotDataset:
+        """Every check that can fail, before any training; returns the pre-demonstrations."""
+        cfg, meta = self.config, self.dataset_meta
+        key = cfg.observation_key
+        if cfg.env_settings is None:
+            raise ValueError(
+                f"the expert dataset at {meta.root} records no environment (meta/iupe.json); "
+                "pass --policy.env_settings='{type: cartpole}' (or the dataset's env)"
+            )
+        self.env_cfg = env_config_from_settings(cfg.env_settings)
+        expert = dataset_spec(meta, key, f"the expert dataset at {meta.root}")
+        check_compatible(env_spec(self.env_cfg, key), expert)
+        if cfg.pre_demos_repo_id is None:
+            raise ValueError("--policy.pre_demos_repo_id is required (random pre-demonstrations with actions)")
+        root = cfg.pre_demos_root
+        if root is not None and not is_dataset(root):
+            raise FileNotFoundError(f"--policy.pre_demos_root={root} is not a LeRobot dataset (no meta/info.json)")
+        pre = LeRobotDataset(cfg.pre_demos_repo_id, root=root, video_backend="pyav")
+        if ACTION not in pre.features:
+            raise ValueError(
+                f"the pre-demonstrations {cfg.pre_demos_repo_id} have no 'action' column; "
+                "collect them with lerobot-iupe-collect --agent=random"
+            )
+        pre_spec = dataset_spec(pre.meta, key, f"the pre-demonstrations {cfg.pre_demos_repo_id}")
+        check_compatible(env_spec(self.env_cfg, key), pre_spec)
+        self.layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
+        return pre
+
+    def start(self) -> None:
+        cfg = self.config
+        pre_dataset = self.check_inputs()
+        threads = cfg.torch_threads or (0 if cfg.is_image else 1)
+        if threads:
+            torch.set_num_threads(threads)
+        rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
+        pre = load_transitions(pre_dataset, cfg.observation_key)
+        size = cfg.sampled_set_size or len(pre)
+        idm = self.policy.idm_parameters()
+        self.state = state = TrainingState(
+            seed=self.seed,
+            rank=rank,
+            pre=pre,
+            sampled_set_size=size,
+            rng=np.random.default_rng([self.seed, rank]),
+            torch_rng=torch.Generator(device="cpu").manual_seed((self.seed * 1000 + rank) % 2**63),
+            idm_optimizer=torch.optim.Adam(idm, lr=cfg.idm_lr),
+        )
+        if state.torch_rng.device != self.device:
+            state.torch_rng = None
+        log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self.env_cfg.type}")
+        saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path else None
+        if saved is not None and saved.exists():
+            self.restore(torch.load(saved, map_location=self.device, weights_only=True))
+            log.info(f"IUPE: continuing from cycle {state.cycle} (step {state.step}) of {saved.parent}")
+            return
+        start = time.perf_counter()
+        self.train_idm(pre)
+        state.idm_s += time.perf_counter() - start
+
+    def restore(self, saved: dict) -> None:
+        """Go on where the saved run stopped: the loaded weights are its selected model; the current model becomes
+        its latest one (LeRobot's restored optimizer state belongs to those)."""
+        self.selected_weights = copy.deepcopy(self.policy.state_dict())
+        self.policy.load_state_dict(saved["latest_weights"])
+        self.state.restore(saved)
+        self.seed = self.state.seed
+
+    def expert_frames(self) -> ExpertFrames:
+        if self._expert is None:
+            meta = self.dataset_meta
+            dataset = LeRobotDataset(meta.repo_id, root=meta.root, video_backend="pyav")
+            self._expert = ExpertFrames(dataset, self.config.observation_key, self.config.supervised, self.device)
+            log.info(f"IUPE: expert dataset in memory, {len(self._expert.episodes)} frames")
+        return self._expert
+
+    # ------------------------------------------------------------ 2. every step
+
+    def labels(self, state: Tensor, next_state: Tensor) -> Tensor:
+        """The IDM's labels of expert pairs, in eval mode (batch-norm layers keep their statistics)."""
+        if self.state is None:
+            self.start()
+        policy = self.policy
+        was_training = policy.training
+        policy.eval()
+        with torch.no_grad():
+            output = policy.idm_output(state, next_state)
+        policy.train(was_training)
+        labels = policy.idm_head.choose(output, self.config.exploration, self.state.torch_rng)
+        self.stats["label_non_map"] = policy.idm_head.spread(output, labels)
+        return labels
+
+    def step_done(self) -> None:
+        self.state.step += 1
+        if self.state.step % self.config.cycle_steps == 0:
+            self.end_cycle()
+
+    # ------------------------------------------------------------ 3. every cycle
+
+    def end_cycle(self) -> None:
+        cfg, state = self.config, self.state
+        state.cycle += 1
+        seed = 1_000_000 * (1 + state.rank) + self.seed * 100_003 + state.cycle * cfg.rollout_episodes
+        start = time.perf_counter()
+        episodes, successes, returns = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
+        state.rollouts_s += time.perf_counter() - start
+        success_rate = float(successes.mean())
+        selected = success_rate >= state.best_success
+        if selected:
+            state.best_success = success_rate
+            self.selected_weights = copy.deepcopy(self.policy.state_dict())
+        pre = state.pre
+        good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
+        if cfg.sampling:
+            p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
+            successful = Transitions.concat(good) if good else pre.take(np.arange(0))
+            sampled = build_sampled_set(pre, successful, p_success, state.sampled_set_size, state.rng)
+        else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
+            sampled = Transitions.concat([pre, *episodes])
+        start = time.perf_counter()
+        self.train_idm(sampled)
+        state.idm_s += time.perf_counter() - start
+        self.stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
+        record = {
+            "cycle": state.cycle,
+            "step": state.step,
+            "rollout_seed": seed,
+            "success_rate": success_rate,
+            "return": float(returns.mean()),
+            "selected": selected,
+            "best_success": state.best_success,
+            "sampled_set_size": len(sampled),
+            "successful_transitions": int(sum(len(e) for e in good)),
+            "idm_accuracy": self.stats["idm_accuracy"],
+            "label_non_map": self.stats.get("label_non_map", 0.0),
+            "rollouts_s": state.rollouts_s,
+            "idm_s": state.idm_s,
+        }
+        state.cycles.append(record)
+        log.info(
+            f"IUPE cycle {state.cycle}: success r={success_rate:.2f} return={record['return']:.1f} "
+            f"IDM acc={record['idm_accuracy']:.3f} non-MAP labels={record['label_non_map']:.3f} "
+            f"|I^s|={len(sampled)} best r={state.best_success:.2f} "
+            f"time so far: rollouts {state.rollouts_s:.2f}s IDM {state.idm_s:.2f}s"
+        )
+
+    @torch.no_grad()
+    def rollout(self, episodes: int, seed: int, explore: bool) -> tuple[list[Transitions], np.ndarray, np.ndarray]:
+        """The policy model in ``episodes`` envs at once (batched inference), one episode each, env ``i`` seeded
+        ``seed + i`` (mazes: the expert dataset's layouts in turn); in eval mode (batch-norm statistics kept)."""
+        policy = self.policy
+        while len(self.envs) < episodes:
+            self.envs.append(self.env_cfg.make())
+        envs = self.envs[:episodes]
+        (env_key,) = [k for k, v in self.env_cfg.observation_keys.items() if v == self.config.observation_key]
+        generator = self.state.torch_rng if self.state else None
+
+        def act(observations: list[dict], active: list[int]) -> list[int]:
+            obs = torch.as_tensor(np.stack([o[env_key] for o in observations]), device=self.device)
+            if self.config.is_image:
+                obs = obs.permute(0, 3, 1, 2)
+            actions = policy.pm_head.choose(policy.pm_output(obs), explore, generator)
+            return [int(a) for a in actions.cpu().numpy()]
+
+        seeds = [seed + i for i in range(episodes)]
+        options = [{"layout_id": self.layouts[s % len(self.layouts)]} if self.layouts else None for s in seeds]
+        was_training = policy.training
+        policy.eval()
+        played = run_episodes(envs, act, seeds, options)
+        policy.train(was_training)
+        transitions = []
+        for episode in played:
+            observations = np.stack([o[env_key] for o in episode.observations])
+            if self.config.is_image:
+                observations = observations.transpose(0, 3, 1, 2)
+            actions = np.asarray(episode.actions, dtype=np.int64)
+            transitions.append(Transitions(observations[:-1], actions, observations[1:]))
+        successes = np.array([e.success for e in played])
+        returns = np.array([e.total_reward for e in played])
+        return transitions, successes, returns
+
+    def train_idm(self, data: Transitions) -> None:
+        """Train the IDM on I^s (90%) and measure its accuracy on the held-out 10%."""
+        policy, state = self.policy, self.state
+        rng, device, batch_size = state.rng, self.device, self.config.idm_batch_size
+        order = rng.permutation(len(data))
+        held = order[: max(1, len(order) // 10)]
+        train = order[len(held) :]
+        to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
+        policy.train()
+        for _ in range(self.config.idm_epochs):
+            rng.shuffle(train)
+            for start in range(0, len(train), batch_size):
+                idx = train[start : start + batch_size]
+                output = policy.idm_output(to(data.states[idx]), to(data.next_states[idx]))
+                loss = policy.idm_head.loss(output, to(data.actions[idx]))
+                state.idm_optimizer.zero_grad()
+                loss.backward()
+                state.idm_optimizer.step()
+        # lerobot-train clips (and logs) the norm of every parameter's gradient: only the policy model's may be left.
+        state.idm_optimizer.zero_grad(set_to_none=True)
+        policy.eval()
+        with torch.no_grad():
+            correct = 0
+            for start in range(0, len(held), 1024):
+                idx = held[start : start + 1024]
+                output = policy.idm_output(to(data.states[idx]), to(data.next_states[idx]))
+                correct += int((policy.idm_head.mode(output) == to(data.actions[idx])).sum())
+        policy.train()
+        self.stats.update({"idm_loss": float(loss.detach()), "idm_accuracy": correct / len(held)})
+
+    # ------------------------------------------------------------ checkpoints
+
+    def save(self, directory: Path) -> None:
+        """The training state and the cycle records beside a checkpoint."""
+        if self.state is None:
+            return
+        torch.save(self.state.saved(self.policy.state_dict()), directory / TRAINING_STATE_FILE)
+        (directory / CYCLES_FILE).write_text("".join(json.dumps(c) + "\n" for c in self.state.cycles))
