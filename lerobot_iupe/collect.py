@@ -15,9 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from lerobot.configs import FeatureType
 from lerobot.datasets import LeRobotDataset
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_STATE
 from tqdm.auto import tqdm
 
 from lerobot_iupe.data.storage import DatasetTarget, resolve_root, staged_directory, write_iupe_meta
@@ -74,13 +75,14 @@ class CollectConfig:
 
 def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = True) -> dict:
     """LeRobot feature spec of a demonstration dataset of this env."""
-    if env_cfg.is_image:
-        size = env_cfg.image_size
-        dtype = "video" if video else "image"
-        features = {OBS_IMAGE: {"dtype": dtype, "shape": (size, size, 3), "names": ["height", "width", "channels"]}}
-    else:
-        dim = env_cfg.features["agent_pos"].shape[0]
-        features = {OBS_STATE: {"dtype": "float32", "shape": (dim,), "names": [f"s{i}" for i in range(dim)]}}
+    features = {}
+    for env_key, key in env_cfg.observation_keys.items():
+        shape = tuple(env_cfg.features[env_key].shape)
+        if env_cfg.features[env_key].type is FeatureType.VISUAL:
+            names = ["height", "width", "channels"]
+            features[key] = {"dtype": "video" if video else "image", "shape": shape, "names": names}
+        else:
+            features[key] = {"dtype": "float32", "shape": shape, "names": [f"s{i}" for i in range(shape[0])]}
     if with_actions:
         features[ACTION] = {"dtype": "int64", "shape": (1,), "names": ["action_id"]}
     features[REWARD] = {"dtype": "float32", "shape": (1,), "names": None}

@@ -10,10 +10,10 @@ from huggingface_hub import DatasetCard, DatasetCardData, HfApi, constants
 from huggingface_hub.errors import RevisionNotFoundError
 from lerobot.datasets import LeRobotDatasetMetadata
 from lerobot.datasets.dataset_metadata import CODEBASE_VERSION
-from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
 from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
+from lerobot_iupe.envs.configs import env_config_from_settings
 from lerobot_iupe.errors import CommandError
 
 # Package data (datasets_cards/ at the repository's top level links to it), so a wheel install can push.
@@ -37,7 +37,6 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
     env = meta.get("env", {"type": info.robot_type})
     seeds = meta.get("seeds", [0])
     card_data = DatasetCardData(license=license, task_categories=["robotics"], tags=CARD_TAGS + [env["type"]])
-    env_cls = EnvConfig.get_choice_class(env["type"])
     command = (
         f"lerobot-iupe-collect --env.type={env['type']} --agent={meta.get('agent')} "
         f"--episodes={meta.get('episodes')} --seed={seeds[0]} --dataset.repo_id={repo_id}"
@@ -62,7 +61,7 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
         is_video=info.features[obs_key]["dtype"] == "video",
         has_actions=ACTION in info.features,
         relabelled_by=meta.get("relabelled_by"),
-        n_actions=env_cls().n_actions,
+        n_actions=env_config_from_settings({"type": env["type"]}).n_actions,
         env_settings=env,
         mean_return=f"{meta.get('mean_return', float('nan')):.2f}",
         std_return=f"{meta.get('std_return', float('nan')):.2f}",

@@ -12,13 +12,19 @@ The same code path as `lerobot-iupe-benchmark` (one IUPE run of seed 0), quiet: 
 bar while training; every command's full output is in a log file under the output folder.
 """
 
-import argparse
-import logging
-import shutil
-import time
-from pathlib import Path
+import os
 
-from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark, write_report
+# Before tqdm is imported: no progress bars from LeRobot's evaluation or the collectors (their output is in the
+# logs); the training bar asks for itself explicitly.
+os.environ.setdefault("TQDM_DISABLE", "1")
+
+import argparse  # noqa: E402
+import logging  # noqa: E402
+import shutil  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark, write_report  # noqa: E402
 
 
 def main() -> None:

@@ -44,6 +44,12 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     again = run_cli("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'work'}", f"--out={out}")
     assert "lerobot-train" not in again.stdout
     assert (out / "results.md").read_text().count("- `lerobot-iupe-benchmark --quick") == 2  # both calls listed
+    # a fresh work folder seeded from the report (a fresh clone): nothing is trained, every record is kept
+    published = json.loads((out / "results.json").read_text())
+    fresh = run_cli("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'fresh'}", f"--out={out}", f"--from={out}")
+    assert "lerobot-train" not in fresh.stdout and f"{len(published)} records added" in fresh.stdout
+    assert json.loads((out / "results.json").read_text()) == published
+    assert len(json.loads((out / "calls.json").read_text())) == 3
 
 
 def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):
@@ -51,6 +57,14 @@ def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):
     result = run_cli("lerobot-iupe-benchmark", "--quick", "--jobs=0", f"--work={work}", f"--out={out}", check=False)
     assert result.returncode == 2
     assert "--jobs: must be 1 or more" in result.stderr
+    assert not work.exists() and not out.exists()
+
+
+def test_from_a_folder_without_results_is_refused_and_nothing_is_written(tmp_path):
+    work, out = tmp_path / "work", tmp_path / "out"
+    args = ["--quick", f"--from={tmp_path}", f"--work={work}", f"--out={out}"]
+    result = run_cli("lerobot-iupe-benchmark", *args, check=False)
+    assert result.returncode == 2 and "--from" in result.stderr and "results.json" in result.stderr
     assert not work.exists() and not out.exists()
 
 
@@ -64,7 +78,7 @@ def test_records_are_keyed_by_everything_that_determines_them():
     preset = PRESETS["cartpole"]
     assert preset.data_key(quick=True) != preset.data_key(quick=False)  # --quick never reuses full datasets
     run = Run("table1", "cartpole", preset, "iupe", 0, {}, {})
-    changed = dataclasses.replace(preset, train=[*preset.train, "--policy.idm_lr=1e-2"])
+    changed = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"idm_lr": "1e-2"}))
     assert run.config_key(100) != dataclasses.replace(run, preset=changed).config_key(100)
     assert run.config_key(100) != run.config_key(50)
     assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)

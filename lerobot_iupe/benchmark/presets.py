@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_iupe.envs.configs import env_config_from_settings
+
 # The paper's Table 1 (P, AER) and Table 2 (Maze 10×10, P, AER).
 PAPER_TABLE1 = {
     "expert": {"cartpole": (1.0, 442.628), "acrobot": (1.0, -110.109), "mountaincar": (1.0, -147.265),
@@ -79,10 +81,7 @@ class EnvPreset:
         return self.env["type"] == "maze"
 
     def env_config(self, layouts: str | None = None) -> EnvConfig:
-        fields = {k: v for k, v in self.env.items() if k != "type"}
-        if layouts:
-            fields["layouts"] = layouts
-        return EnvConfig.get_choice_class(self.env["type"])(**fields)
+        return env_config_from_settings({**self.env, **({"layouts": layouts} if layouts else {})})
 
     def env_flags(self) -> list[str]:
         return [f"--env.{k}={v}" for k, v in self.env.items()]
