@@ -69,9 +69,16 @@ def run_cli(
 
 
 def collect_datasets(
-    name: str, preset: EnvPreset, data_dir: Path, quick: bool = False, threads: int = 0, quiet: bool = False
+    name: str,
+    preset: EnvPreset,
+    data_dir: Path,
+    quick: bool = False,
+    threads: int = 0,
+    quiet: bool = False,
+    with_actions: bool = True,
 ) -> dict[str, Path]:
-    """Expert (state only), the same expert episodes with actions (for BC), random pre-demonstrations."""
+    """Expert (state only), the same expert episodes with actions (for BC; ``with_actions``), random
+    pre-demonstrations."""
     paths = {}
     name = f"{name}-{preset.data_key(quick)}"
     n_expert, n_random = preset.data.expert_episodes, preset.data.random_episodes
@@ -82,6 +89,8 @@ def collect_datasets(
         ("expert-actions", "expert", n_expert, ["--seed=0", "--keep_actions=true"]),
         ("random", "random", n_random, ["--seed=1000", *preset.data.random_flags()]),
     ]:
+        if kind == "expert-actions" and not with_actions:
+            continue
         root = data_dir / f"{name}-{kind}"
         if not (root / "meta" / "iupe.json").exists():
             run_cli(
@@ -205,7 +214,7 @@ class Benchmark:
     ) -> list[Run]:
         """The unrecorded runs of ``methods`` × ``seeds`` (a run is recorded when a row with its table, env, method,
         seed and configuration key exists), collecting the datasets and measuring the references first."""
-        data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet)
+        data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet, "bc" in methods)
         references = self.references(preset, data)
         runs = [
             Run(table, name, preset, method, seed, data, references, self.quick)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from lerobot.utils.constants import HF_LEROBOT_HOME
 
+
 @dataclass
 class DatasetTarget:
     """``--dataset.*`` of the package's commands: which dataset to write, relabel or push."""
