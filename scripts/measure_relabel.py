@@ -20,8 +20,8 @@ from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.dataset_tools import remove_feature
 
 from lerobot_iupe.benchmark import CHECKPOINT
+from lerobot_iupe.data.readers import video_chunks
 from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
-from lerobot_iupe.relabel import video_chunks
 
 BIN = Path(sys.executable).parent
 ENVS = {  # demo preset -> collect flags
