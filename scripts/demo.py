@@ -12,19 +12,13 @@ The same code path as `lerobot-iupe-benchmark` (one IUPE run of seed 0), quiet: 
 bar while training; every command's full output is in a log file under the output folder.
 """
 
-import os
+import argparse
+import logging
+import shutil
+import time
+from pathlib import Path
 
-# Before tqdm is imported: no progress bars from LeRobot's evaluation or the collectors (their output is in the
-# logs); the training bar asks for itself explicitly.
-os.environ.setdefault("TQDM_DISABLE", "1")
-
-import argparse  # noqa: E402
-import logging  # noqa: E402
-import shutil  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark, write_report  # noqa: E402
+from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark, write_report
 
 
 def main() -> None:
@@ -57,7 +51,8 @@ def main() -> None:
     print(f"\nreferences: expert {records[0]['R_expert']:.3f} (demonstrations), random {records[0]['R_random']:.3f}")
     print(f"checkpoint: {out / 'runs' / 'demo' / args.env / 'iupe-s0' / CHECKPOINT}")
     print(f"plot: {out / 'cycles.png'}   report: {out / 'results.md'}")
-    print(f"logs: {out / 'runs' / 'demo' / args.env / 'iupe-s0.log'} (training), {out / 'data' / 'logs'} (datasets)")
+    run_logs = out / "runs" / "demo" / args.env
+    print(f"logs: {run_logs}/iupe-s0.log (training), iupe-s0.eval.log (evaluation), {out / 'data' / 'logs'} (datasets)")
     print(f"total: {time.perf_counter() - start:.0f}s")
 
 

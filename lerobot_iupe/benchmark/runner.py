@@ -8,6 +8,7 @@ stopped; the report (``report.py``) is rebuilt from all records on every call.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -17,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -256,6 +258,15 @@ class Benchmark:
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise
 
+    @contextlib.contextmanager
+    def _output_to(self, log: Path) -> Iterator[None]:
+        """Quiet: what LeRobot's evaluation prints (its progress bars, weight loading) goes to ``log``."""
+        if not self.quiet:
+            yield
+            return
+        with log.open("w") as file, contextlib.redirect_stdout(file), contextlib.redirect_stderr(file):
+            yield
+
     def _execute(self, run: Run, threads: int) -> None:
         if not self.quiet:
             print(f"[benchmark] {run.table} {run.name} {run.method} seed={run.seed}", flush=True)
@@ -285,7 +296,7 @@ class Benchmark:
             cycles, timing = read_training_run(out / CHECKPOINT, output, run.budget.steps)
             evals = {}
             # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
-            with self._lock:
+            with self._lock, self._output_to(out.with_suffix(".eval.log")):
                 for lay in preset.layouts:
                     for mode in preset.eval_modes:
                         start = time.perf_counter()
