@@ -61,7 +61,7 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
         is_video=info.features[obs_key]["dtype"] == "video",
         has_actions=ACTION in info.features,
         relabelled_by=meta.get("relabelled_by"),
-        n_actions=env_config_from_settings({"type": env["type"]}).n_actions,
+        n_actions=env_config_from_settings(env).n_actions,
         env_settings=env,
         mean_return=f"{meta.get('mean_return', float('nan')):.2f}",
         std_return=f"{meta.get('std_return', float('nan')):.2f}",

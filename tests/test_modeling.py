@@ -110,3 +110,8 @@ def test_expert_frames_give_successive_states_by_frame_index(cartpole_expert):
 def test_unknown_eval_mode_is_refused_naming_the_flag():
     with pytest.raises(ValueError, match=r"--policy.eval_mode must be one of \['argmax', 'sample'\], got 'greedy'"):
         IUPEConfig(eval_mode="greedy")
+
+
+def test_unknown_image_backbone_is_refused_naming_the_flag():
+    with pytest.raises(ValueError, match=r"--policy.image_backbone must be one of \['cnn', 'resnet18'\], got 'vit'"):
+        IUPEConfig(image_backbone="vit")

@@ -27,11 +27,17 @@ class Episode:
     rewards: list[float] = field(default_factory=list)
     successes: list[bool] = field(default_factory=list)
     info: dict = field(default_factory=dict)
-    # Summed step by step as the rewards come (Python's sum() of floats is compensated and differs in the last bit).
-    total_reward: float = 0.0
 
     def __len__(self) -> int:
         return len(self.actions)
+
+    @property
+    def total_reward(self) -> float:
+        # Added in step order: Python's sum() of floats is compensated and differs in the last bit.
+        total = 0.0
+        for reward in self.rewards:
+            total += reward
+        return total
 
     @property
     def success(self) -> bool:
@@ -59,7 +65,6 @@ def run_episodes(
             episode.observations.append(observation)
             episode.actions.append(action)
             episode.rewards.append(float(reward))
-            episode.total_reward += float(reward)
             episode.successes.append(bool(info.get("is_success", False)))
             episode.info = info
             if not (terminated or truncated):

@@ -98,6 +98,8 @@ class IUPETrainer:
         self.selected_weights: dict[str, Tensor] | None = None  # best rollout success so far (latest on ties)
         self.envs: list = []  # rollout envs, created once and reused by every cycle
         self.layouts: list[int] = []  # maze: the expert dataset's layout ids, cycled through by rollouts
+        self.env_cfg = None  # the rollout env, set by check_inputs
+        self.env_key = ""  # the env observation the policy reads (features_map: env key → observation key)
         self._expert: ExpertFrames | None = None
 
     @property
@@ -120,8 +122,9 @@ class IUPETrainer:
                 "pass --policy.env_settings='{type: cartpole}' (or the dataset's env)"
             )
         self.env_cfg = env_config_from_settings(cfg.env_settings)
-        expert = dataset_spec(meta, key, f"the expert dataset at {meta.root}")
-        check_compatible(env_spec(self.env_cfg, key), expert)
+        env = env_spec(self.env_cfg, key)
+        check_compatible(env, dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
+        self.env_key = next(k for k, v in self.env_cfg.observation_keys.items() if v == key)
         if cfg.pre_demos_repo_id is None:
             raise ValueError("--policy.pre_demos_repo_id is required (random pre-demonstrations with actions)")
         root = cfg.pre_demos_root
@@ -134,7 +137,7 @@ class IUPETrainer:
                 "collect them with lerobot-iupe-collect --agent=random"
             )
         pre_spec = dataset_spec(pre.meta, key, f"the pre-demonstrations {cfg.pre_demos_repo_id}")
-        check_compatible(env_spec(self.env_cfg, key), pre_spec)
+        check_compatible(env, pre_spec)
         self.layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
         return pre
 
@@ -263,7 +266,7 @@ class IUPETrainer:
         while len(self.envs) < episodes:
             self.envs.append(self.env_cfg.make())
         envs = self.envs[:episodes]
-        (env_key,) = [k for k, v in self.env_cfg.observation_keys.items() if v == self.config.observation_key]
+        env_key = self.env_key
         generator = self.state.torch_rng if self.state else None
 
         def act(observations: list[dict], active: list[int]) -> list[int]:
