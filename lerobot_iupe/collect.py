@@ -18,7 +18,7 @@ import numpy as np
 from lerobot.configs import FeatureType
 from lerobot.datasets import LeRobotDataset
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_STATE
+from lerobot.utils.constants import ACTION
 from tqdm.auto import tqdm
 
 from lerobot_iupe.data.storage import DatasetTarget, resolve_root, staged_directory, write_iupe_meta
@@ -92,10 +92,13 @@ def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = T
 
 
 def _observation_entry(env_cfg: IUPEEnvConfig, observation: dict) -> dict:
-    entry = {key: observation[env_key] for env_key, key in env_cfg.observation_keys.items()}
-    if OBS_STATE in entry:
-        entry[OBS_STATE] = np.asarray(entry[OBS_STATE], dtype=np.float32)
-    return entry
+    """The dataset keys of an env observation; vectors as float32 (``dataset_features``), images as they come."""
+    return {
+        key: observation[env_key]
+        if env_cfg.features[env_key].type is FeatureType.VISUAL
+        else np.asarray(observation[env_key], dtype=np.float32)
+        for env_key, key in env_cfg.observation_keys.items()
+    }
 
 
 def episode_frames(env_cfg: IUPEEnvConfig, episode: Episode, task: str, with_actions: bool) -> Iterator[dict]:
