@@ -22,11 +22,12 @@ from lerobot.utils.constants import ACTION
 from tqdm.auto import tqdm
 
 from lerobot_iupe.data.storage import DatasetTarget, resolve_root, staged_directory, write_iupe_meta
-from lerobot_iupe.envs.configs import IUPEEnvConfig
+from lerobot_iupe.envs.configs import IUPEEnvConfig, action_names
 from lerobot_iupe.envs.rollout import Episode, agent_act, run_episodes
 from lerobot_iupe.experts import AGENTS, make_agent
 
 REWARD, DONE, SUCCESS = "next.reward", "next.done", "next.success"
+ENV_TYPES = ("cartpole", "acrobot", "mountaincar", "maze", "lunarlander", "so101_pickplace")
 
 
 @dataclass
@@ -53,10 +54,11 @@ class CollectConfig:
 
     def validate(self) -> None:
         if self.env is None:
-            raise ValueError("--env.type is required: one of cartpole, acrobot, mountaincar, maze")
+            raise ValueError(f"--env.type is required: one of {', '.join(ENV_TYPES)}")
         if not isinstance(self.env, IUPEEnvConfig):
             raise ValueError(
-                f"--env.type={self.env.type} is not an env of this package; use cartpole, acrobot, mountaincar or maze"
+                f"--env.type={self.env.type} is not an env of this package (its agents live here); "
+                f"use one of {', '.join(ENV_TYPES)}"
             )
         self.env.validate()
         if self.agent not in AGENTS:
@@ -83,8 +85,14 @@ def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = T
             features[key] = {"dtype": "video" if video else "image", "shape": shape, "names": names}
         else:
             features[key] = {"dtype": "float32", "shape": shape, "names": [f"s{i}" for i in range(shape[0])]}
-    if with_actions:
+    if with_actions and env_cfg.n_actions:
         features[ACTION] = {"dtype": "int64", "shape": (1,), "names": ["action_id"]}
+    elif with_actions:
+        features[ACTION] = {
+            "dtype": "float32",
+            "shape": tuple(env_cfg.features[ACTION].shape),
+            "names": action_names(env_cfg),
+        }
     features[REWARD] = {"dtype": "float32", "shape": (1,), "names": None}
     features[DONE] = {"dtype": "bool", "shape": (1,), "names": None}
     features[SUCCESS] = {"dtype": "bool", "shape": (1,), "names": None}
@@ -101,6 +109,13 @@ def _observation_entry(env_cfg: IUPEEnvConfig, observation: dict) -> dict:
     }
 
 
+def _action_entry(env_cfg: IUPEEnvConfig, action) -> np.ndarray:
+    """An action as stored: the id as int64 (1,) for a discrete env, float32 (action_dim,) for a continuous one."""
+    if env_cfg.n_actions:
+        return np.array([int(np.asarray(action).reshape(-1)[0])], dtype=np.int64)
+    return np.asarray(action, dtype=np.float32).reshape(env_cfg.features[ACTION].shape)
+
+
 def episode_frames(env_cfg: IUPEEnvConfig, episode: Episode, task: str, with_actions: bool) -> Iterator[dict]:
     """The T + 1 frames of an episode of T steps (see the module's docstring)."""
     success = False
@@ -108,13 +123,13 @@ def episode_frames(env_cfg: IUPEEnvConfig, episode: Episode, task: str, with_act
         success |= episode.successes[t]
         frame = _observation_entry(env_cfg, episode.observations[t])
         if with_actions:
-            frame[ACTION] = np.array([action], dtype=np.int64)
+            frame[ACTION] = _action_entry(env_cfg, action)
         done = t == len(episode) - 1
         reward = np.array([episode.rewards[t]], dtype=np.float32)
         yield {**frame, REWARD: reward, DONE: np.array([done]), SUCCESS: np.array([success]), "task": task}
     last = _observation_entry(env_cfg, episode.observations[-1])
     if with_actions:
-        last[ACTION] = np.zeros(1, dtype=np.int64)
+        last[ACTION] = _action_entry(env_cfg, np.zeros(env_cfg.features[ACTION].shape))
     yield {**last, REWARD: np.zeros(1, np.float32), DONE: np.array([True]), SUCCESS: np.array([success]), "task": task}
 
 

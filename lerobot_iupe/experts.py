@@ -1,8 +1,8 @@
 """Built-in experts and the uniform-random agent, and their reference returns.
 
-Every agent is a callable ``agent(env, observation) -> int`` acting on one environment made from the package's
-env configs (``env`` is the ``gym.make`` result, so an agent may look at the simulator when it needs to, as
-the maze's shortest-path expert does).
+Every agent is a callable ``agent(env, observation) -> action`` (an int id, or a float32 array for a ``Box``
+action) acting on one environment made from the package's env configs (``env`` is the ``gym.make`` result, so an
+agent may look at the simulator when it needs to, as the maze's shortest-path expert does).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from lerobot_iupe.envs.configs import IUPEEnvConfig
 from lerobot_iupe.envs.rollout import agent_act, run_episodes
 
-Agent = Callable[[gym.Env, dict], int]
+Agent = Callable[[gym.Env, dict], int | np.ndarray]
 AGENTS = ("expert", "random")
 CARTPOLE_GAINS = np.array([0.1, 0.5, 10.0, 1.0])
 
@@ -107,9 +107,17 @@ def maze_expert(env: gym.Env, observation: dict) -> int:
     return env.unwrapped.expert_action()
 
 
-def random_agent(env: gym.Env, observation: dict) -> int:
-    """Uniform over the action space, drawn from the env's own seeded generator."""
-    return int(env.unwrapped.np_random.integers(env.action_space.n))
+def env_expert(env: gym.Env, observation: dict) -> np.ndarray:
+    """The expert an env carries itself (``expert_action``): LunarLander's heuristic, SO-101's scripted controller."""
+    return env.get_wrapper_attr("expert_action")()
+
+
+def random_agent(env: gym.Env, observation: dict) -> int | np.ndarray:
+    """Uniform over the action space (ids, or a ``Box`` between its bounds), from the env's own seeded generator."""
+    space, rng = env.action_space, env.unwrapped.np_random
+    if isinstance(space, gym.spaces.Discrete):
+        return int(rng.integers(space.n))
+    return rng.uniform(space.low, space.high).astype(np.float32)
 
 
 @cache
@@ -128,19 +136,28 @@ def make_agent(env_type: str, agent: str) -> Agent:
         "mountaincar": _mountaincar_expert,
         "acrobot": AcrobotExpert.from_file,
         "maze": lambda: maze_expert,
+        "lunarlander": lambda: env_expert,
+        "so101_pickplace": lambda: env_expert,
     }
     if env_type not in experts:
         raise ValueError(f"no built-in expert for env type {env_type!r}; expected one of {sorted(experts)}")
     return experts[env_type]()
 
 
-def reference_returns(env_cfg: IUPEEnvConfig, agent: str, episodes: int = 100, seed: int = 100_000) -> np.ndarray:
-    """Returns of ``episodes`` seeded episodes (seeds ``seed, seed+1, …``) of a built-in agent."""
+def agent_episodes(
+    env_cfg: IUPEEnvConfig, agent: str, episodes: int = 100, seed: int = 100_000
+) -> tuple[np.ndarray, np.ndarray]:
+    """Returns and successes of ``episodes`` seeded episodes (seeds ``seed, seed+1, …``) of a built-in agent."""
     env = env_cfg.make()
     act = agent_act([env], make_agent(env_cfg.type, agent))
-    returns = [
-        run_episodes([env], act, [seed + i])[0].total_reward
+    played = [
+        run_episodes([env], act, [seed + i])[0]
         for i in tqdm(range(episodes), desc=f"{env_cfg.type} {agent}", leave=False)
     ]
     env.close()
-    return np.asarray(returns)
+    return np.asarray([e.total_reward for e in played]), np.asarray([e.success for e in played])
+
+
+def reference_returns(env_cfg: IUPEEnvConfig, agent: str, episodes: int = 100, seed: int = 100_000) -> np.ndarray:
+    """Returns of ``episodes`` seeded episodes (seeds ``seed, seed+1, …``) of a built-in agent."""
+    return agent_episodes(env_cfg, agent, episodes, seed)[0]

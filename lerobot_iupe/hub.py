@@ -33,7 +33,19 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
     """Fill the package's card template from the dataset's metadata."""
     info = LeRobotDatasetMetadata(repo_id, root=root).info
     meta = read_iupe_meta(root)
-    obs_key = OBS_IMAGE if OBS_IMAGE in info.features else OBS_STATE
+    obs_keys = [k for k in info.features if k.startswith("observation.")]
+    obs_key = OBS_IMAGE if OBS_IMAGE in info.features else OBS_STATE if OBS_STATE in info.features else obs_keys[0]
+    action = info.features.get(ACTION)
+    if action is not None and action["dtype"].startswith("float"):
+        action_text = f"float32 {tuple(action['shape'])}: {', '.join(action['names'] or [])}"
+    else:
+        n_actions = getattr(env_config_from_settings(meta["env"]), "n_actions", "?") if "env" in meta else "?"
+        action_text = f"int64 action id, {n_actions} actions"
+    observation_text = ", ".join(
+        f"`{k}` {tuple(info.features[k]['shape'])}"
+        + (" (stored as video)" if info.features[k]["dtype"] == "video" else "")
+        for k in obs_keys
+    )
     env = meta.get("env", {"type": info.robot_type})
     seeds = meta.get("seeds", [0])
     card_data = DatasetCardData(license=license, task_categories=["robotics"], tags=CARD_TAGS + [env["type"]])
@@ -61,7 +73,8 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
         is_video=info.features[obs_key]["dtype"] == "video",
         has_actions=ACTION in info.features,
         relabelled_by=meta.get("relabelled_by"),
-        n_actions=env_config_from_settings(env).n_actions,
+        action_text=action_text,
+        observation_text=observation_text,
         env_settings=env,
         mean_return=f"{meta.get('mean_return', float('nan')):.2f}",
         std_return=f"{meta.get('std_return', float('nan')):.2f}",

@@ -4,7 +4,9 @@ through lerobot-train, resumable records), evaluation (LeRobot's own) and report
 from lerobot_iupe.benchmark.evaluation import EVAL_SEED, evaluate_agent, evaluate_checkpoint, read_training_run
 from lerobot_iupe.benchmark.presets import (
     ABLATION,
+    CONTINUOUS,
     LOW_DATA,
+    LOW_DATA_CONTINUOUS_METHODS,
     LOW_DATA_METHODS,
     PRESETS,
     TABLE1_METHODS,
@@ -19,8 +21,10 @@ from lerobot_iupe.benchmark.runner import CHECKPOINT, Benchmark, Run, run_cli
 __all__ = [
     "ABLATION",
     "CHECKPOINT",
+    "CONTINUOUS",
     "EVAL_SEED",
     "LOW_DATA",
+    "LOW_DATA_CONTINUOUS_METHODS",
     "LOW_DATA_METHODS",
     "PRESETS",
     "TABLE1_METHODS",

@@ -16,7 +16,7 @@ from lerobot.policies import make_policy, make_pre_post_processors
 from lerobot.scripts.lerobot_eval import eval_policy_all
 from lerobot.utils.random_utils import set_seed
 
-from lerobot_iupe.experts import reference_returns
+from lerobot_iupe.experts import agent_episodes
 from lerobot_iupe.policy.training import CYCLES_FILE
 
 EVAL_SEED = 500_000  # evaluation seeds/layouts 500000…: never used by data (0…, 1000…) or rollouts (≥ 1e6)
@@ -52,8 +52,8 @@ def evaluate_checkpoint(
 def evaluate_agent(agent: str, env_cfg: EnvConfig, episodes: int) -> dict:
     """A built-in agent on the evaluation seeds (the same envs, seeds and layouts as ``evaluate_checkpoint``).
     Not through eval_policy_all: the maze expert reads the simulator's state, which a LeRobot policy cannot."""
-    returns = reference_returns(env_cfg, agent, episodes, seed=EVAL_SEED)
-    return {"avg_sum_reward": float(returns.mean()), "pc_success": None}
+    returns, successes = agent_episodes(env_cfg, agent, episodes, seed=EVAL_SEED)
+    return {"avg_sum_reward": float(returns.mean()), "pc_success": 100.0 * float(successes.mean())}
 
 
 DATA_S = re.compile(r"data_s:([\d.]+)")

@@ -134,12 +134,26 @@ PRESETS = {
         TrainBudget(2000, 64, 250, {"idm_epochs": "2"}),
     ),
 }
+# Continuous actions (the "continuous" table): 10 rollout episodes per cycle, since a hovering lander plays all
+# 1,000 steps of an episode and rollouts are most of a run's time.
+CONTINUOUS = {
+    "lunarlander": EnvPreset(
+        {"type": "lunarlander"}, DataSettings(20, 200), TrainBudget(3000, 64, 200, {"rollout_episodes": "10"})
+    ),
+    "so101_pickplace": EnvPreset(
+        {"type": "so101_pickplace"}, DataSettings(50, 100), TrainBudget(3000, 64, 200, {"rollout_episodes": "10"})
+    ),
+}
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.
 LOW_DATA = {
     "cartpole": EnvPreset({"type": "cartpole"}, DataSettings(1, 45), TrainBudget(200, 64, 25)),
     "acrobot": EnvPreset({"type": "acrobot"}, DataSettings(1, 2), TrainBudget(200, 64, 25)),
     "mountaincar": EnvPreset({"type": "mountaincar"}, DataSettings(1, 5), TrainBudget(400, 64, 50)),
+    "lunarlander": EnvPreset(
+        {"type": "lunarlander"}, DataSettings(1, 10), TrainBudget(1000, 64, 100, {"rollout_episodes": "10"})
+    ),
 }
+LOW_DATA_CONTINUOUS_METHODS = ["bco", "iupe"]
 QUICK_BUDGET = TrainBudget(20, 32, 10, {"rollout_episodes": "4"})
 
 

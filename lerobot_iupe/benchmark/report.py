@@ -9,11 +9,20 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_iupe.benchmark.evaluation import EVAL_SEED
-from lerobot_iupe.benchmark.presets import ABLATION, LOW_DATA, LOW_DATA_METHODS, PAPER_TABLE1, PAPER_TABLE2, PRESETS
+from lerobot_iupe.benchmark.presets import (
+    ABLATION,
+    CONTINUOUS,
+    LOW_DATA,
+    LOW_DATA_METHODS,
+    PAPER_TABLE1,
+    PAPER_TABLE2,
+    PRESETS,
+)
 
 METHOD_NAMES = {"expert": "Expert", "random": "Random", "bc": "BC", "bco": "BCO(α)", "iupe": "IUPE"}
 ENV_NAMES = {"cartpole": "CartPole", "acrobot": "Acrobot", "mountaincar": "MountainCar", "maze3": "Maze 3×3",
-             "maze5": "Maze 5×5", "maze10": "Maze 10×10"}  # fmt: skip
+             "maze5": "Maze 5×5", "maze10": "Maze 10×10", "lunarlander": "LunarLander",
+             "so101_pickplace": "SO-101 pick-and-place"}  # fmt: skip
 
 
 def _group(records: list[dict], **match) -> list[dict]:
@@ -36,14 +45,21 @@ def _rows(records: list[dict], mode: str | None, **match) -> list[dict]:
     return _group(records, eval_mode=mode, **match)
 
 
-def _table(records, table, envs, methods, layouts, mode, paper=None) -> list[str]:
+def _success_cell(rows: list[dict]) -> str:
+    rates = np.array([r["success_rate"] for r in rows if r.get("success_rate") is not None])
+    if not len(rates):
+        return "–"
+    return f"{rates[0]:.2f}" if len(rates) == 1 else f"{rates.mean():.2f} ± {rates.std():.2f} (n={len(rates)})"
+
+
+def _table(records, table, envs, methods, layouts, mode, paper=None, cell=_cell) -> list[str]:
     head = "| method | " + " | ".join(ENV_NAMES.get(e, e) for e in envs) + " |"
     lines = [head, "|---" * (len(envs) + 1) + "|"]
     for method in methods:
         cells = []
         for env in envs:
             lay = layouts(env)
-            cells.append(_cell(_rows(records, mode, table=table, env=env, method=method, eval_layouts=lay)))
+            cells.append(cell(_rows(records, mode, table=table, env=env, method=method, eval_layouts=lay)))
         lines.append(f"| {METHOD_NAMES.get(method, method)} (ours) | " + " | ".join(cells) + " |")
         if paper and method in paper:
             ref = paper[method]
@@ -141,6 +157,12 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
                 "results.json, not with the 3-seed means."
             )
         lines += ["", note]
+    continuous = [e for e in CONTINUOUS if _group(records, table="continuous", env=e)]
+    if continuous:
+        lines += ["", "## Continuous actions: P / AER (evaluation by the Gaussian's mode, `argmax`)", ""]
+        lines += _table(records, "continuous", continuous, methods, lambda e: None, "argmax")
+        lines += ["", "## Continuous actions: success rate (LeRobot's `is_success`), mean ± std over seeds", ""]
+        lines += _table(records, "continuous", continuous, methods, lambda e: None, "argmax", cell=_success_cell)
     low = [e for e in LOW_DATA if _group(records, table="lowdata", env=e)]
     if low:
         lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions (argmax evaluation)", ""]

@@ -22,7 +22,9 @@ from pathlib import Path
 
 from lerobot_iupe.benchmark import (
     ABLATION,
+    CONTINUOUS,
     LOW_DATA,
+    LOW_DATA_CONTINUOUS_METHODS,
     LOW_DATA_METHODS,
     PRESETS,
     TABLE1_METHODS,
@@ -42,7 +44,10 @@ def positive_int(text: str) -> int:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata"])
+    parser.add_argument(
+        "--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata", "continuous"],
+        help="continuous: LunarLander and SO-101 (all Table 1 methods) and LunarLander's low-data row",
+    )  # fmt: skip
     parser.add_argument("--envs", nargs="+", default=list(PRESETS), choices=list(PRESETS), help="Table 1 envs")
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS, help="Table 1 methods")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
@@ -77,7 +82,14 @@ def main() -> None:
                 requests.append(dict(table="table1", name=env, preset=PRESETS[env], methods=args.methods))
         if "lowdata" in args.tables:
             for env, preset in LOW_DATA.items():
-                requests.append(dict(table="lowdata", name=env, preset=preset, methods=LOW_DATA_METHODS))
+                if env not in CONTINUOUS:
+                    requests.append(dict(table="lowdata", name=env, preset=preset, methods=LOW_DATA_METHODS))
+        if "continuous" in args.tables:
+            for env, preset in CONTINUOUS.items():
+                requests.append(dict(table="continuous", name=env, preset=preset, methods=args.methods))
+            for env in (e for e in LOW_DATA if e in CONTINUOUS):
+                low = dict(table="lowdata", name=env, preset=LOW_DATA[env], methods=LOW_DATA_CONTINUOUS_METHODS)
+                requests.append(low)
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))

@@ -1,16 +1,29 @@
 """The one compatibility check between the things IUPE puts together — an expert dataset, pre-demonstrations, a
 rollout env, a checkpoint: the same observation key and shape (as LeRobot stores it: (D,) or (H, W, C)), fps, env
-type and action count. Each side is described by a ``DataSpec``; a field one side does not know is not checked."""
+type, and action count (discrete) or action dimensions (continuous). Each side is described by a ``DataSpec``; a
+field one side does not know is not checked."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from lerobot.configs import FeatureType
 from lerobot.datasets import LeRobotDatasetMetadata
-from lerobot.utils.constants import OBS_IMAGE
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION
 
 from lerobot_iupe.data.storage import read_iupe_meta
-from lerobot_iupe.envs.configs import IUPEEnvConfig, env_config_from_settings
+from lerobot_iupe.envs.configs import env_config_from_settings, env_observation_keys
+
+
+def _env_actions(env_cfg: EnvConfig | None) -> tuple[int | None, int | None]:
+    """(action count, None) of a discrete env of this package, (None, action dimensions) of a continuous one."""
+    if env_cfg is None:
+        return None, None
+    n_actions = getattr(env_cfg, "n_actions", 0)
+    if n_actions:
+        return n_actions, None
+    return None, int(env_cfg.features[ACTION].shape[0])
 
 
 @dataclass(frozen=True)
@@ -23,6 +36,7 @@ class DataSpec:
     fps: int | None = None
     env_type: str | None = None
     n_actions: int | None = None
+    action_dim: int | None = None  # continuous actions only
     available: tuple[str, ...] = ()  # the observation keys the side does have (for the message)
 
 
@@ -31,37 +45,45 @@ def dataset_spec(meta: LeRobotDatasetMetadata, key: str, source: str) -> DataSpe
     feature = meta.features.get(key)
     env = read_iupe_meta(meta.root).get("env")
     env_cfg = env_config_from_settings(env) if env else None
+    n_actions, action_dim = _env_actions(env_cfg)
+    action = meta.features.get(ACTION)
+    if action is not None and action["dtype"].startswith("float"):
+        n_actions, action_dim = None, int(action["shape"][0])
     return DataSpec(
         source=source,
         observation_key=key,
         observation_shape=tuple(feature["shape"]) if feature else None,
         fps=meta.fps,
         env_type=env_cfg.type if env_cfg else None,
-        n_actions=env_cfg.n_actions if env_cfg else None,
+        n_actions=n_actions,
+        action_dim=action_dim,
         available=tuple(k for k in meta.features if k.startswith("observation.")),
     )
 
 
-def env_spec(env_cfg: IUPEEnvConfig, key: str) -> DataSpec:
-    """An env: the observation its ``features_map`` maps to ``key``, fps, type and action count."""
-    env_key = {v: k for k, v in env_cfg.observation_keys.items()}.get(key)
+def env_spec(env_cfg: EnvConfig, key: str) -> DataSpec:
+    """An env (any LeRobot env type): the observation its ``features_map`` maps to ``key``, fps, type, actions."""
+    keys = env_observation_keys(env_cfg)
+    env_key = {v: k for k, v in keys.items()}.get(key)
     feature = env_cfg.features.get(env_key) if env_key else None
+    n_actions, action_dim = _env_actions(env_cfg)
     return DataSpec(
         source=f"env {env_cfg.type}",
         observation_key=key,
         observation_shape=tuple(feature.shape) if feature else None,
         fps=env_cfg.fps,
         env_type=env_cfg.type,
-        n_actions=env_cfg.n_actions,
-        available=tuple(env_cfg.observation_keys.values()),
+        n_actions=n_actions,
+        action_dim=action_dim,
+        available=tuple(keys.values()),
     )
 
 
 def checkpoint_spec(config, source: str = "the checkpoint") -> DataSpec:
-    """An IUPE policy config: the observation it reads (policies see images as (C, H, W)) and its env."""
+    """An IUPE policy config: the (first) observation it reads (policies see images as (C, H, W)) and its env."""
     key = config.observation_key
     shape = tuple(config.input_features[key].shape)
-    if key == OBS_IMAGE:
+    if config.input_features[key].type is FeatureType.VISUAL:
         shape = (shape[1], shape[2], shape[0])
     env_cfg = env_config_from_settings(config.env_settings) if config.env_settings else None
     return DataSpec(
@@ -71,11 +93,12 @@ def checkpoint_spec(config, source: str = "the checkpoint") -> DataSpec:
         fps=env_cfg.fps if env_cfg else None,
         env_type=env_cfg.type if env_cfg else None,
         n_actions=config.n_actions or None,
+        action_dim=config.action_dim if config.is_continuous else None,
         available=(key,),
     )
 
 
-CHECKED = {"fps": "fps", "env_type": "env type", "n_actions": "number of actions"}
+CHECKED = {"fps": "fps", "env_type": "env type", "n_actions": "number of actions", "action_dim": "action dimensions"}
 
 
 def check_compatible(expected: DataSpec, actual: DataSpec) -> None:

@@ -1,13 +1,18 @@
-"""LeRobot env types ``cartpole``, ``acrobot``, ``mountaincar`` and ``maze`` (``--env.type=…``)."""
+"""LeRobot env types of this package (``--env.type=…``): the paper's discrete ``cartpole``, ``acrobot``,
+``mountaincar`` and ``maze``, and the continuous ``lunarlander`` and ``so101_pickplace``; and what the package reads
+of any LeRobot env config (``env_observation_keys``, ``env_settings``, ``make_envs``)."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import gymnasium as gym
+import numpy as np
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+from lerobot.envs.factory import make_env
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
 
 from lerobot_iupe.envs.maze import HELDOUT_LAYOUT_START, default_max_steps
 
@@ -16,7 +21,8 @@ GYM_NAMESPACE = "lerobot_iupe"
 
 @dataclass
 class IUPEEnvConfig(EnvConfig):
-    """Common part: a gym id registered by this package, a time limit and a discrete action count."""
+    """Common part: a gym id registered by this package, a time limit, and a discrete action count (0 for a
+    continuous ``Box`` action, whose shape is ``features["action"]``)."""
 
     n_actions: int = 0
 
@@ -35,8 +41,7 @@ class IUPEEnvConfig(EnvConfig):
 
     @property
     def observation_keys(self) -> dict[str, str]:
-        """Env observation key → dataset/policy key (``agent_pos`` → ``observation.state``), from ``features_map``."""
-        return {env_key: key for env_key, key in self.features_map.items() if key != ACTION}
+        return env_observation_keys(self)
 
     def validate(self) -> None:
         """Raise a ValueError naming the flag when a setting is out of range (draccus hides __post_init__ errors)."""
@@ -163,6 +168,76 @@ class MazeEnvConfig(IUPEEnvConfig):
         return {"type": self.type, "size": self.size, "image_size": self.image_size, "max_steps": self.max_steps}
 
 
+@EnvConfig.register_subclass("lunarlander")
+@dataclass
+class LunarLanderEnvConfig(ClassicEnvConfig):
+    """Gymnasium's LunarLanderContinuous-v3: 2-D action [main engine, lateral engines] in [-1, 1]; the 8-D state is
+    the ``environment_state`` (see ``envs/lunar.py`` for why, and for the safe-landing success rule)."""
+
+    task: str | None = "LunarLanderContinuous-v3"
+    fps: int = 50
+    episode_length: int = 1000
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(2,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(8,)),
+        }
+    )
+    features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, "environment_state": OBS_ENV_STATE})
+    action_names: tuple[str, ...] = ("main_engine", "lateral_engines")
+
+
+@EnvConfig.register_subclass("so101_pickplace")
+@dataclass
+class SO101PickPlaceEnvConfig(IUPEEnvConfig):
+    """The ``lerobot_env_so101`` plugin's pick-and-place task (random block and goal positions) with its success
+    as ``info["is_success"]``: 4-D action [dx, dy, dz, grasp], ``agent_pos`` (14) → ``observation.state``,
+    ``environment_state`` (block and goal positions, 6) → ``observation.environment_state``."""
+
+    task: str | None = "SO101PickPlace-v0"
+    fps: int = 10
+    episode_length: int = 100
+    action_scale: float = 0.025
+    random_block_position: bool = True
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(4,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(14,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(6,)),
+        }
+    )
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
+    )
+    action_names: tuple[str, ...] = ("dx", "dy", "dz", "grasp")
+
+    def validate(self) -> None:
+        if self.action_scale <= 0:
+            raise ValueError(f"--env.action_scale must be positive (metres per unit action), got {self.action_scale}")
+        if self.episode_length < 1:
+            raise ValueError(f"--env.episode_length must be at least 1, got {self.episode_length}")
+
+    @property
+    def max_episode_steps(self) -> int:
+        return self.episode_length
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {
+            "action_scale": self.action_scale,
+            "random_block_position": self.random_block_position,
+            "max_episode_steps": self.episode_length,
+        }
+
+    def settings(self) -> dict:
+        return {
+            "type": self.type,
+            "episode_length": self.episode_length,
+            "action_scale": self.action_scale,
+            "random_block_position": self.random_block_position,
+        }
+
+
 def register_gym_envs() -> None:
     """Register the package's gymnasium ids (idempotent)."""
     entries = {
@@ -170,6 +245,8 @@ def register_gym_envs() -> None:
         "Acrobot-v1": ("lerobot_iupe.envs.classic:ClassicControlEnv", {"name": "acrobot"}, 500),
         "MountainCar-v0": ("lerobot_iupe.envs.classic:ClassicControlEnv", {"name": "mountaincar"}, 200),
         "Maze-v0": ("lerobot_iupe.envs.maze:MazeEnv", {}, None),
+        "LunarLanderContinuous-v3": ("lerobot_iupe.envs.lunar:LunarLanderEnv", {}, 1000),
+        "SO101PickPlace-v0": ("lerobot_iupe.envs.so101:SO101PickPlaceEnv", {}, 100),
     }
     for task, (entry_point, kwargs, max_steps) in entries.items():
         env_id = f"{GYM_NAMESPACE}/{task}"
@@ -178,6 +255,67 @@ def register_gym_envs() -> None:
 
 
 def env_config_from_settings(settings: dict) -> EnvConfig:
-    """The env config a dataset's ``meta/iupe.json`` records (``IUPEEnvConfig.settings()``, the other way)."""
+    """The env config a dataset's ``meta/iupe.json`` records (``env_settings``, the other way)."""
     fields = {k: v for k, v in settings.items() if k != "type"}
     return EnvConfig.get_choice_class(settings["type"])(**fields)
+
+
+def env_config_from_command_line(args: list[str] | None = None) -> EnvConfig | None:
+    """The env of ``lerobot-train``'s own ``--env.type=… --env.<field>=…`` flags, or None. LeRobot builds the
+    policy from the dataset alone (``make_policy(ds_meta=…)``), so the policy reads the flags it was given."""
+    import sys
+
+    import draccus
+    from lerobot.configs.parser import get_cli_overrides, get_type_arg
+
+    args = sys.argv[1:] if args is None else args
+    env_type = get_type_arg("env", args)
+    if env_type is None:
+        return None
+    overrides = [a for a in get_cli_overrides("env", args) or [] if not a.startswith("--discover_packages_path")]
+    return draccus.parse(EnvConfig.get_choice_class(env_type), args=overrides)
+
+
+def env_settings(env_cfg: EnvConfig) -> dict:
+    """What rebuilds ``env_cfg`` with ``env_config_from_settings``: this package's ``settings()``, or for any other
+    LeRobot env type its plain (number, string, bool) config fields."""
+    if isinstance(env_cfg, IUPEEnvConfig):
+        return env_cfg.settings()
+    plain = (int, float, str, bool, type(None))
+    fields = {f.name: getattr(env_cfg, f.name) for f in dataclasses.fields(env_cfg) if f.init}
+    return {"type": env_cfg.type, **{k: v for k, v in fields.items() if isinstance(v, plain)}}
+
+
+def env_observation_keys(env_cfg: EnvConfig) -> dict[str, str]:
+    """Env observation key → dataset/policy key (``agent_pos`` → ``observation.state``), from ``features_map``."""
+    return {env_key: key for env_key, key in env_cfg.features_map.items() if key != ACTION}
+
+
+def env_observation(observation: dict, env_key: str) -> np.ndarray:
+    """One entry of an env's dict observation; cameras may sit under ``pixels`` (``{"pixels": {"top": …}}``)."""
+    if env_key in observation:
+        return observation[env_key]
+    return observation["pixels"][env_key]
+
+
+def action_names(env_cfg: EnvConfig) -> list[str]:
+    names = getattr(env_cfg, "action_names", None)
+    dim = int(env_cfg.features[ACTION].shape[0])
+    return list(names) if names else [f"a{i}" for i in range(dim)]
+
+
+def make_envs(env_cfg: EnvConfig, n: int) -> list[gym.Env]:
+    """``n`` single envs made by LeRobot's ``make_env`` (as ``lerobot-eval`` makes them; it imports the env's
+    package when its gym id is not registered yet), each reset and stepped on its own."""
+    validate = getattr(env_cfg, "validate", None)
+    if validate is not None:
+        validate()
+    vector = make_env(env_cfg, n_envs=n)[env_cfg.type][0]
+    return list(vector.envs)
+
+
+def action_space_of(env_cfg: EnvConfig) -> gym.spaces.Space:
+    env = make_envs(env_cfg, 1)[0]
+    space = env.action_space
+    env.close()
+    return space

@@ -1,4 +1,8 @@
-"""The algorithmic core of IUPE as small pure functions: label/action choice, Eq. 1, the sampling rule, metrics."""
+"""The algorithmic core of IUPE as small pure functions: label/action choice, Eq. 1, the sampling rule, action
+cells for continuous actions, metrics.
+
+The sampling rule works on action *classes*: the action ids of a discrete space, or for a continuous (Box) space
+the cells of a k-means partition fitted on the pre-demonstrations' actions (``ActionCells``)."""
 
 from __future__ import annotations
 
@@ -68,22 +72,87 @@ def build_sampled_set(
     p_success: np.ndarray,
     size: int,
     rng: np.random.Generator,
+    pre_classes: np.ndarray | None = None,
+    successful_classes: np.ndarray | None = None,
 ) -> Transitions:
     """I^s by the sampling rule; a class with fewer transitions than its share is drawn with replacement.
-    ``successful`` holds only transitions of rollouts that reached the goal."""
-    n_actions = len(p_success)
-    pre_counts = np.bincount(pre.actions, minlength=n_actions)[:n_actions]
+    ``successful`` holds only transitions of rollouts that reached the goal. The classes of each transition are
+    its (discrete) actions unless given (``*_classes``: action cells of continuous actions)."""
+    n_classes = len(p_success)
+    pre_classes = pre.actions if pre_classes is None else pre_classes
+    successful_classes = successful.actions if successful_classes is None else successful_classes
+    pre_counts = np.bincount(pre_classes, minlength=n_classes)[:n_classes]
     from_success, from_pre = sampling_counts(p_success, pre_counts, size)
     picks = []
-    for source, counts in ((successful, from_success), (pre, from_pre)):
-        for action, count in enumerate(counts):
+    for source, classes, counts in ((successful, successful_classes, from_success), (pre, pre_classes, from_pre)):
+        for cls, count in enumerate(counts):
             if count == 0:
                 continue
-            pool = np.flatnonzero(source.actions == action)
+            pool = np.flatnonzero(classes == cls)
             if len(pool) == 0:
-                raise ValueError(f"no transitions of action {action} to draw {count} samples from")
+                raise ValueError(f"no transitions of action class {cls} to draw {count} samples from")
             picks.append(source.take(rng.choice(pool, size=count, replace=count > len(pool))))
     return Transitions.concat(picks)
+
+
+class ActionCells:
+    """A partition of a continuous action space into ``k`` cells: k-means (k-means++ start, Lloyd iterations) on
+    actions scaled to [-1, 1] per dimension; a cell is the set of actions nearest to one centre.
+    By hand because a 20-line Lloyd loop is all it needs (scikit-learn/scipy are not otherwise dependencies)."""
+
+    def __init__(self, centres: np.ndarray, low: np.ndarray, high: np.ndarray):
+        self.centres, self.low, self.high = centres, np.asarray(low, np.float64), np.asarray(high, np.float64)
+
+    @property
+    def k(self) -> int:
+        return len(self.centres)
+
+    def _scaled(self, actions: np.ndarray) -> np.ndarray:
+        actions = np.asarray(actions, np.float64).reshape(len(actions), -1)
+        return 2.0 * (actions - self.low) / np.maximum(self.high - self.low, 1e-12) - 1.0
+
+    @classmethod
+    def fit(cls, actions: np.ndarray, k: int, low: np.ndarray, high: np.ndarray, seed: int, iterations: int = 50):
+        """Cells fitted on ``actions`` (N, D); fewer than ``k`` when there are fewer distinct actions."""
+        cells = cls(np.zeros((0, np.asarray(low).size)), low, high)
+        points = np.unique(cells._scaled(actions), axis=0)
+        rng = np.random.default_rng(seed)
+        k = min(k, len(points))
+        centres = [points[rng.integers(len(points))]]
+        for _ in range(1, k):  # k-means++: the next centre far from the chosen ones
+            distance = ((points[:, None, :] - np.asarray(centres)[None]) ** 2).sum(-1).min(1)
+            centres.append(points[rng.choice(len(points), p=distance / distance.sum())])
+        centres = np.asarray(centres)
+        for _ in range(iterations):
+            assign = ((points[:, None, :] - centres[None]) ** 2).sum(-1).argmin(1)
+            moved = np.array([points[assign == c].mean(0) if (assign == c).any() else centres[c] for c in range(k)])
+            if np.allclose(moved, centres):
+                break
+            centres = moved
+        cells.centres = centres
+        return cells
+
+    def assign(self, actions: np.ndarray) -> np.ndarray:
+        """The cell of each action (N,) int64."""
+        if len(actions) == 0:
+            return np.zeros(0, dtype=np.int64)
+        scaled = self._scaled(actions)
+        out = np.empty(len(scaled), dtype=np.int64)
+        for start in range(0, len(scaled), 65536):
+            part = scaled[start : start + 65536]
+            out[start : start + 65536] = ((part[:, None, :] - self.centres[None]) ** 2).sum(-1).argmin(1)
+        return out
+
+
+def r_squared(predicted: np.ndarray, true: np.ndarray) -> float:
+    """Coefficient of determination averaged over action dimensions (1 = exact; 0 = no better than the mean)."""
+    predicted = np.asarray(predicted, np.float64).reshape(len(true), -1)
+    true = np.asarray(true, np.float64).reshape(len(true), -1)
+    variance = true.var(axis=0)
+    keep = variance > 1e-12
+    if not keep.any():
+        return float("nan")
+    return float(np.mean(1.0 - ((predicted - true) ** 2).mean(axis=0)[keep] / variance[keep]))
 
 
 def performance(returns: np.ndarray, expert_return: float, random_return: float) -> float:

@@ -7,10 +7,17 @@ from pathlib import Path
 
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamConfig
-from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_iupe.data.storage import read_iupe_meta
-from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.envs.configs import (
+    IUPEEnvConfig,
+    action_names,
+    action_space_of,
+    env_config_from_command_line,
+    env_config_from_settings,
+    env_settings,
+)
 
 EVAL_MODES = ("argmax", "sample")
 IMAGE_BACKBONES = ("cnn", "resnet18")
@@ -33,9 +40,21 @@ class IUPEConfig(PreTrainedConfig):
     # How select_action (lerobot-eval) acts, whatever the training switches: "argmax" (the policy's most likely
     # action) or "sample" (a draw from its softmax). Exploration is a training mechanism only.
     eval_mode: str = "argmax"
-    # Number of discrete actions; 0 = read from the pre-demonstrations (or the env).
+    # Number of discrete actions; 0 = read from the env (0 also for a continuous env).
     n_actions: int = 0
-    # Environment of the rollouts; None = the one recorded in the expert dataset's meta/iupe.json.
+    # Continuous (Box) actions: bounds and names per dimension; None = read from the env's action space.
+    action_low: list[float] | None = None
+    action_high: list[float] | None = None
+    action_names: list[str] | None = None
+    # Continuous actions: the sampling rule's action classes are K cells of a k-means partition of the
+    # pre-demonstrations' actions (benchmarks/findings.md measures K).
+    action_cells: int = 16
+    # The observations the policy reads; None = every image key of the dataset if it has any, else every vector
+    # key (observation.state, observation.environment_state, …), concatenated; images of several cameras are
+    # stacked as channels (same size). Images and vectors together are not supported yet.
+    observation_keys: list[str] | None = None
+    # Environment of the rollouts, as {type: …, <env config fields>}; None = lerobot-train's --env.* when given,
+    # else the one recorded in the expert dataset's meta/iupe.json.
     env_settings: dict | None = None
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
@@ -78,6 +97,12 @@ class IUPEConfig(PreTrainedConfig):
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
         if self.eval_mode not in EVAL_MODES:
             raise ValueError(f"--policy.eval_mode must be one of {list(EVAL_MODES)}, got {self.eval_mode!r}")
+        if self.action_cells < 1:
+            raise ValueError(f"--policy.action_cells must be at least 1, got {self.action_cells}")
+        if (self.action_low is None) != (self.action_high is None) or (
+            self.action_low is not None and len(self.action_low) != len(self.action_high)
+        ):
+            raise ValueError("--policy.action_low and --policy.action_high must be given together, one per dimension")
         if self.image_backbone not in IMAGE_BACKBONES:
             raise ValueError(
                 f"--policy.image_backbone must be one of {list(IMAGE_BACKBONES)}, got {self.image_backbone!r}"
@@ -103,11 +128,20 @@ class IUPEConfig(PreTrainedConfig):
 
     @property
     def observation_key(self) -> str:
-        return OBS_IMAGE if OBS_IMAGE in self.input_features else OBS_STATE
+        """The first observation key (single-key tools: relabelling, hub cards)."""
+        return self.observation_keys[0]
 
     @property
     def is_image(self) -> bool:
-        return self.observation_key == OBS_IMAGE
+        return self.input_features[self.observation_keys[0]].type is FeatureType.VISUAL
+
+    @property
+    def is_continuous(self) -> bool:
+        return self.action_low is not None
+
+    @property
+    def action_dim(self) -> int:
+        return len(self.action_low) if self.is_continuous else 1
 
     def get_optimizer_preset(self) -> AdamConfig:
         return AdamConfig(lr=self.optimizer_lr, grad_clip_norm=10.0)
@@ -116,31 +150,62 @@ class IUPEConfig(PreTrainedConfig):
         return None
 
     def validate_features(self) -> None:
-        keys = set(self.input_features)
-        if OBS_STATE not in keys and OBS_IMAGE not in keys:
+        features = self.input_features
+        images = [k for k, f in features.items() if f.type is FeatureType.VISUAL]
+        order = {OBS_STATE: 0, OBS_ENV_STATE: 1}
+        vectors = sorted(
+            (k for k, f in features.items() if f.type in (FeatureType.STATE, FeatureType.ENV)),
+            key=lambda k: order.get(k, 2),
+        )
+        if not self.observation_keys:
+            if not images and not vectors:
+                raise ValueError(f"the expert dataset has no observation IUPE can read (features: {sorted(features)})")
+            self.observation_keys = images or vectors
+        unknown = [k for k in self.observation_keys if k not in features]
+        if unknown:
             raise ValueError(
-                f"the expert dataset has neither '{OBS_STATE}' nor '{OBS_IMAGE}' (features: {sorted(keys)}); "
-                "IUPE needs one of them"
+                f"--policy.observation_keys names {unknown}, which the dataset does not have "
+                f"(it has {images + vectors})"
             )
+        if any(k in images for k in self.observation_keys) and any(k in vectors for k in self.observation_keys):
+            raise ValueError(
+                f"--policy.observation_keys={self.observation_keys} mixes images and vectors; IUPE reads either "
+                f"image keys ({images}) or vector keys ({vectors})"
+            )
+        if self.is_image and len({tuple(features[k].shape[1:]) for k in self.observation_keys}) > 1:
+            raise ValueError(f"the cameras {self.observation_keys} differ in size; IUPE stacks them and needs one size")
         # make_policy sets output_features from the dataset's actions: {} for state-only data.
-        self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(1,))}
+        self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
         # Defaults that depend on the observation kind, resolved once so that config.json records what ran.
         self.idm_epochs = self.idm_epochs or (5 if self.is_image else 2)
         self.idm_batch_size = self.idm_batch_size or (64 if self.is_image else 256)
 
     def resolve_dataset(self, dataset_meta) -> None:
-        """Fill what the training dataset tells (the rollout env from its ``meta/iupe.json`` unless
-        ``--policy.env_settings`` is given; the action count from that env) and refuse what it cannot train.
-        ``dataset_meta`` is None when a checkpoint is loaded for evaluation: its config holds all of it."""
+        """Fill what the training run tells (the rollout env: ``--policy.env_settings``, else lerobot-train's
+        ``--env.*``, else the expert dataset's ``meta/iupe.json``; the action space from that env) and refuse what
+        it cannot train. ``dataset_meta`` is None when a checkpoint is loaded for evaluation: its config holds all
+        of it."""
         if dataset_meta is not None and self.env_settings is None:
-            self.env_settings = read_iupe_meta(Path(dataset_meta.root)).get("env")
-        if self.n_actions == 0:
+            env_cfg = env_config_from_command_line()
+            if env_cfg is not None:
+                self.env_settings = env_settings(env_cfg)
+            else:
+                self.env_settings = read_iupe_meta(Path(dataset_meta.root)).get("env")
+        if self.n_actions == 0 and not self.is_continuous:
             if self.env_settings is None:
                 raise ValueError(
-                    "cannot tell the number of actions: the expert dataset has no meta/iupe.json; "
-                    "pass --policy.n_actions and --policy.env_settings"
+                    "cannot tell the action space: no --env.type, no --policy.env_settings and the expert dataset "
+                    "has no meta/iupe.json; pass --env.type=<the env of the demonstrations>"
                 )
-            self.n_actions = env_config_from_settings(self.env_settings).n_actions
+            env_cfg = env_config_from_settings(self.env_settings)
+            if isinstance(env_cfg, IUPEEnvConfig) and env_cfg.n_actions:
+                self.n_actions = env_cfg.n_actions
+            else:
+                space = action_space_of(env_cfg)
+                self.action_low = [float(x) for x in space.low]
+                self.action_high = [float(x) for x in space.high]
+                self.action_names = action_names(env_cfg)
+        self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
         if dataset_meta is not None and self.supervised and ACTION not in dataset_meta.features:
             raise ValueError(
                 f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "

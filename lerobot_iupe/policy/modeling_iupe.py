@@ -14,11 +14,10 @@ from pathlib import Path
 import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot.utils.constants import OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
-from lerobot_iupe.policy.networks import CategoricalHead, VectorEncoder, make_image_encoder
+from lerobot_iupe.policy.networks import VectorEncoder, make_action_head, make_image_encoder
 from lerobot_iupe.policy.training import IUPETrainer
 
 
@@ -31,27 +30,30 @@ class IUPEPolicy(PreTrainedPolicy):
         config.validate_features()
         config.resolve_dataset(dataset_meta)
         self.config = config
-        obs_shape = tuple(config.input_features[config.observation_key].shape)
+        # Several vector keys are concatenated, several cameras stacked as channels (in observation_keys order).
+        shapes = [tuple(config.input_features[k].shape) for k in config.observation_keys]
         hidden = config.hidden_dim
         if config.is_image:
-            channels = obs_shape[0]
+            channels = sum(shape[0] for shape in shapes)
             encoder = lambda c: make_image_encoder(  # noqa: E731
                 config.image_backbone, c, config.cnn_width, hidden, config.attention
             )
             self.idm_encoder, self.pm_encoder = encoder(2 * channels), encoder(channels)
         else:
-            dim = obs_shape[0]
+            dim = sum(shape[0] for shape in shapes)
             self.idm_encoder = VectorEncoder(2 * dim, config.token_dim, hidden, config.attention)
             self.pm_encoder = VectorEncoder(dim, config.token_dim, hidden, config.attention)
-        self.idm_head = CategoricalHead(hidden, config.n_actions)
-        self.pm_head = CategoricalHead(hidden, config.n_actions)
-        state_dim = 1 if config.is_image else obs_shape[0]
+        self.idm_head = make_action_head(hidden, config)
+        self.pm_head = make_action_head(hidden, config)
+        state_dim = 1 if config.is_image else dim
         self.register_buffer("state_mean", torch.zeros(state_dim))
         self.register_buffer("state_std", torch.ones(state_dim))
-        if not config.is_image and dataset_stats and OBS_STATE in dataset_stats:
-            self.state_mean.copy_(torch.as_tensor(np.asarray(dataset_stats[OBS_STATE]["mean"]), dtype=torch.float32))
-            std = torch.as_tensor(np.asarray(dataset_stats[OBS_STATE]["std"]), dtype=torch.float32)
-            self.state_std.copy_(std.clamp_min(1e-3))
+        if not config.is_image and dataset_stats and all(k in dataset_stats for k in config.observation_keys):
+            stat = lambda name: np.concatenate(  # noqa: E731
+                [np.asarray(dataset_stats[k][name], dtype=np.float32).reshape(-1) for k in config.observation_keys]
+            )
+            self.state_mean.copy_(torch.as_tensor(stat("mean")))
+            self.state_std.copy_(torch.as_tensor(stat("std")).clamp_min(1e-3))
         self.dataset_meta = dataset_meta
         # lerobot-train seeds torch with its --seed just before building the policy: that seed drives IUPE's own
         # streams unless --policy.seed is given.
@@ -76,6 +78,10 @@ class IUPEPolicy(PreTrainedPolicy):
     def pm_output(self, state: Tensor) -> Tensor:
         """The policy head's distribution parameters (logits) for a → s_t."""
         return self.pm_head(self.pm_encoder(self._prepare(state)))
+
+    def observation(self, batch: dict[str, Tensor]) -> Tensor:
+        """The policy's input from a LeRobot batch: its observation keys, concatenated (channels for images)."""
+        return torch.cat([batch[k] for k in self.config.observation_keys], dim=1)
 
     def idm_parameters(self) -> list[nn.Parameter]:
         return list(self.idm_encoder.parameters()) + list(self.idm_head.parameters())
@@ -105,7 +111,7 @@ class IUPEPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """The policy model's action as LeRobot's env loop wants it, (B, action_dim): the mode, or a draw with
         ``eval_mode="sample"`` (whatever the training switches). Training rollouts draw on their own."""
-        output = self.pm_output(batch[self.config.observation_key])
+        output = self.pm_output(self.observation(batch))
         return self.pm_head.as_float_action(self.pm_head.choose(output, self.config.eval_mode == "sample"))
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:

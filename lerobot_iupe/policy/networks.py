@@ -151,3 +151,67 @@ class CategoricalHead(nn.Linear):
     def as_float_action(self, actions: Tensor) -> Tensor:
         """LeRobot's env loop sends float actions of shape (B, action_dim): the id as a float, (B, 1)."""
         return actions.unsqueeze(-1).float()
+
+
+class GaussianHead(nn.Linear):
+    """A diagonal Gaussian over a ``Box`` action of ``action_dim`` dimensions, sibling of ``CategoricalHead``:
+    one linear layer gives the mean and the log standard deviation (learned, per state) of the action scaled to
+    [-1, 1] by the space's bounds (buffers ``low``/``high``); draws and modes are clipped into the bounds."""
+
+    LOG_STD_RANGE = (-5.0, 1.0)
+
+    def __init__(self, hidden: int, action_dim: int, low: list[float], high: list[float]):
+        super().__init__(hidden, 2 * action_dim)
+        self.action_dim = action_dim
+        self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).reshape(action_dim))
+        self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).reshape(action_dim))
+
+    def _scale(self, actions: Tensor) -> Tensor:
+        return 2.0 * (actions.float() - self.low) / (self.high - self.low) - 1.0
+
+    def _unscale(self, scaled: Tensor) -> Tensor:
+        return self.low + (scaled + 1.0) * 0.5 * (self.high - self.low)
+
+    def mean_and_std(self, output: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean and standard deviation in the scaled space ([-1, 1] per dimension)."""
+        mean, log_std = output.float().split(self.action_dim, dim=-1)
+        return mean, log_std.clamp(*self.LOG_STD_RANGE).exp()
+
+    def loss(self, output: Tensor, actions: Tensor) -> Tensor:
+        """Negative log-likelihood of the actions (per dimension, constant dropped)."""
+        mean, std = self.mean_and_std(output)
+        z = (self._scale(actions.reshape(len(mean), -1)) - mean) / std
+        return (0.5 * z.square() + std.log()).mean()
+
+    def choose(self, output: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
+        """One action per row (B, action_dim): a draw from the distribution when exploring, else its mode."""
+        mean, std = self.mean_and_std(output)
+        if explore:
+            noise = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
+            mean = mean + std * noise
+        return self._unscale(mean.clamp(-1.0, 1.0))
+
+    def mode(self, output: Tensor) -> Tensor:
+        return self.choose(output, explore=False)
+
+    def spread(self, output: Tensor, chosen: Tensor) -> float:
+        """How far drawn actions are from the mode: mean Euclidean distance in the scaled space (0 = no
+        exploration; it decays as the predicted scale shrinks, like the discrete non-MAP rate)."""
+        distance = self._scale(chosen) - self._scale(self.mode(output))
+        return float(distance.norm(dim=-1).mean())
+
+    def likelihood(self, output: Tensor, chosen: Tensor) -> Tensor:
+        """Density of each chosen action in the scaled space (the labeller's confidence)."""
+        mean, std = self.mean_and_std(output)
+        z = (self._scale(chosen) - mean) / std
+        return torch.exp(-0.5 * z.square().sum(-1)) / (std * (2 * torch.pi) ** 0.5).prod(-1)
+
+    def as_float_action(self, actions: Tensor) -> Tensor:
+        return actions.float()
+
+
+def make_action_head(hidden: int, config) -> nn.Module:
+    """The head of the config's action space: categorical (``n_actions``) or Gaussian (``action_low/high``)."""
+    if config.is_continuous:
+        return GaussianHead(hidden, len(config.action_low), config.action_low, config.action_high)
+    return CategoricalHead(hidden, config.n_actions)

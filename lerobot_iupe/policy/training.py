@@ -32,9 +32,9 @@ from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
 from lerobot_iupe.data.readers import ExpertFrames, load_transitions
 from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
 from lerobot_iupe.data.transitions import Transitions
-from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys, make_envs
 from lerobot_iupe.envs.rollout import run_episodes
-from lerobot_iupe.policy.algorithm import build_sampled_set, success_action_distribution
+from lerobot_iupe.policy.algorithm import ActionCells, build_sampled_set, r_squared, success_action_distribution
 
 if TYPE_CHECKING:
     from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
@@ -99,7 +99,8 @@ class IUPETrainer:
         self.envs: list = []  # rollout envs, created once and reused by every cycle
         self.layouts: list[int] = []  # maze: the expert dataset's layout ids, cycled through by rollouts
         self.env_cfg = None  # the rollout env, set by check_inputs
-        self.env_key = ""  # the env observation the policy reads (features_map: env key → observation key)
+        self.env_keys: list[str] = []  # the env observations the policy reads (features_map: env key → its key)
+        self.cells: ActionCells | None = None  # continuous actions: the sampling rule's action classes
         self._expert: ExpertFrames | None = None
 
     @property
@@ -115,16 +116,17 @@ class IUPETrainer:
     def check_inputs(self) -> LeRobotDataset:
         """Every check that can fail, before any training; returns the pre-demonstrations."""
         cfg, meta = self.config, self.dataset_meta
-        key = cfg.observation_key
         if cfg.env_settings is None:
             raise ValueError(
                 f"the expert dataset at {meta.root} records no environment (meta/iupe.json); "
-                "pass --policy.env_settings='{type: cartpole}' (or the dataset's env)"
+                "pass --env.type=<its env> (and --env.<field>=… as for lerobot-eval)"
             )
         self.env_cfg = env_config_from_settings(cfg.env_settings)
-        env = env_spec(self.env_cfg, key)
-        check_compatible(env, dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
-        self.env_key = next(k for k, v in self.env_cfg.observation_keys.items() if v == key)
+        for key in cfg.observation_keys:
+            env = env_spec(self.env_cfg, key)
+            check_compatible(env, dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
+        env_key_of = {v: k for k, v in env_observation_keys(self.env_cfg).items()}
+        self.env_keys = [env_key_of[key] for key in cfg.observation_keys]
         if cfg.pre_demos_repo_id is None:
             raise ValueError("--policy.pre_demos_repo_id is required (random pre-demonstrations with actions)")
         root = cfg.pre_demos_root
@@ -136,8 +138,16 @@ class IUPETrainer:
                 f"the pre-demonstrations {cfg.pre_demos_repo_id} have no 'action' column; "
                 "collect them with lerobot-iupe-collect --agent=random"
             )
-        pre_spec = dataset_spec(pre.meta, key, f"the pre-demonstrations {cfg.pre_demos_repo_id}")
-        check_compatible(env, pre_spec)
+        for key in cfg.observation_keys:
+            pre_spec = dataset_spec(pre.meta, key, f"the pre-demonstrations {cfg.pre_demos_repo_id}")
+            check_compatible(env_spec(self.env_cfg, key), pre_spec)
+        continuous_actions = pre.meta.features[ACTION]["dtype"].startswith("float")
+        if continuous_actions != cfg.is_continuous:
+            kind = {True: "continuous", False: "discrete"}
+            raise ValueError(
+                f"the pre-demonstrations {cfg.pre_demos_repo_id} have {kind[continuous_actions]} actions but env "
+                f"{self.env_cfg.type} has {kind[cfg.is_continuous]} ones"
+            )
         self.layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
         return pre
 
@@ -148,7 +158,9 @@ class IUPETrainer:
         if threads:
             torch.set_num_threads(threads)
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
-        pre = load_transitions(pre_dataset, cfg.observation_key)
+        pre = load_transitions(pre_dataset, cfg.observation_keys)
+        if cfg.is_continuous:  # fitted again identically on resume (own seed)
+            self.cells = ActionCells.fit(pre.actions, cfg.action_cells, cfg.action_low, cfg.action_high, self.seed)
         size = cfg.sampled_set_size or len(pre)
         idm = self.policy.idm_parameters()
         self.state = state = TrainingState(
@@ -184,7 +196,7 @@ class IUPETrainer:
         if self._expert is None:
             meta = self.dataset_meta
             dataset = LeRobotDataset(meta.repo_id, root=meta.root, video_backend="pyav")
-            self._expert = ExpertFrames(dataset, self.config.observation_key, self.config.supervised, self.device)
+            self._expert = ExpertFrames(dataset, self.config.observation_keys, self.config.supervised, self.device)
             log.info(f"IUPE: expert dataset in memory, {len(self._expert.episodes)} frames")
         return self._expert
 
@@ -226,9 +238,17 @@ class IUPETrainer:
         pre = state.pre
         good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
         if cfg.sampling:
-            p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
             successful = Transitions.concat(good) if good else pre.take(np.arange(0))
-            sampled = build_sampled_set(pre, successful, p_success, state.sampled_set_size, state.rng)
+            if self.cells is None:
+                p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
+                sampled = build_sampled_set(pre, successful, p_success, state.sampled_set_size, state.rng)
+            else:  # continuous: the rule on action cells
+                classes = [self.cells.assign(e.actions) for e in episodes]
+                p_success = success_action_distribution(classes, successes, self.cells.k)
+                sampled = build_sampled_set(
+                    pre, successful, p_success, state.sampled_set_size, state.rng,
+                    self.cells.assign(pre.actions), self.cells.assign(successful.actions),
+                )  # fmt: skip
         else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
             sampled = Transitions.concat([pre, *episodes])
         start = time.perf_counter()
@@ -245,7 +265,7 @@ class IUPETrainer:
             "best_success": state.best_success,
             "sampled_set_size": len(sampled),
             "successful_transitions": int(sum(len(e) for e in good)),
-            "idm_accuracy": self.stats["idm_accuracy"],
+            self.idm_metric: self.stats[self.idm_metric],
             "label_non_map": self.stats.get("label_non_map", 0.0),
             "rollouts_s": state.rollouts_s,
             "idm_s": state.idm_s,
@@ -253,7 +273,7 @@ class IUPETrainer:
         state.cycles.append(record)
         log.info(
             f"IUPE cycle {state.cycle}: success r={success_rate:.2f} return={record['return']:.1f} "
-            f"IDM acc={record['idm_accuracy']:.3f} non-MAP labels={record['label_non_map']:.3f} "
+            f"IDM {self.idm_metric}={record[self.idm_metric]:.3f} label spread={record['label_non_map']:.3f} "
             f"|I^s|={len(sampled)} best r={state.best_success:.2f} "
             f"time so far: rollouts {state.rollouts_s:.2f}s IDM {state.idm_s:.2f}s"
         )
@@ -261,20 +281,19 @@ class IUPETrainer:
     @torch.no_grad()
     def rollout(self, episodes: int, seed: int, explore: bool) -> tuple[list[Transitions], np.ndarray, np.ndarray]:
         """The policy model in ``episodes`` envs at once (batched inference), one episode each, env ``i`` seeded
-        ``seed + i`` (mazes: the expert dataset's layouts in turn); in eval mode (batch-norm statistics kept)."""
+        ``seed + i`` (mazes: the expert dataset's layouts in turn); in eval mode (batch-norm statistics kept).
+        Envs are made once by LeRobot's ``make_env`` (any LeRobot env type) and reused by every cycle."""
         policy = self.policy
-        while len(self.envs) < episodes:
-            self.envs.append(self.env_cfg.make())
+        if len(self.envs) < episodes:
+            self.envs += make_envs(self.env_cfg, episodes - len(self.envs))
         envs = self.envs[:episodes]
-        env_key = self.env_key
         generator = self.state.torch_rng if self.state else None
+        continuous = self.config.is_continuous
 
-        def act(observations: list[dict], active: list[int]) -> list[int]:
-            obs = torch.as_tensor(np.stack([o[env_key] for o in observations]), device=self.device)
-            if self.config.is_image:
-                obs = obs.permute(0, 3, 1, 2)
-            actions = policy.pm_head.choose(policy.pm_output(obs), explore, generator)
-            return [int(a) for a in actions.cpu().numpy()]
+        def act(observations: list[dict], active: list[int]) -> list:
+            obs = torch.as_tensor(np.stack([self.observation(o) for o in observations]), device=self.device)
+            actions = policy.pm_head.choose(policy.pm_output(obs), explore, generator).cpu().numpy()
+            return list(actions) if continuous else [int(a) for a in actions]
 
         seeds = [seed + i for i in range(episodes)]
         options = [{"layout_id": self.layouts[s % len(self.layouts)]} if self.layouts else None for s in seeds]
@@ -284,17 +303,30 @@ class IUPETrainer:
         policy.train(was_training)
         transitions = []
         for episode in played:
-            observations = np.stack([o[env_key] for o in episode.observations])
-            if self.config.is_image:
-                observations = observations.transpose(0, 3, 1, 2)
-            actions = np.asarray(episode.actions, dtype=np.int64)
+            observations = np.stack([self.observation(o) for o in episode.observations])
+            if continuous:
+                actions = np.asarray(episode.actions, dtype=np.float32).reshape(len(episode), -1)
+            else:
+                actions = np.asarray(episode.actions, dtype=np.int64)
             transitions.append(Transitions(observations[:-1], actions, observations[1:]))
         successes = np.array([e.success for e in played])
         returns = np.array([e.total_reward for e in played])
         return transitions, successes, returns
 
+    def observation(self, env_observation_dict: dict) -> np.ndarray:
+        """The policy's input from one env observation: its keys concatenated (images: (C, H, W), stacked)."""
+        parts = [np.asarray(env_observation(env_observation_dict, k)) for k in self.env_keys]
+        if self.config.is_image:
+            parts = [p.transpose(2, 0, 1) for p in parts]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
+
+    @property
+    def idm_metric(self) -> str:
+        """How the IDM is scored on held-out I^s: label agreement (discrete) or R² (continuous)."""
+        return "idm_r2" if self.config.is_continuous else "idm_accuracy"
+
     def train_idm(self, data: Transitions) -> None:
-        """Train the IDM on I^s (90%) and measure its accuracy on the held-out 10%."""
+        """Train the IDM on I^s (90%) and score it on the held-out 10% (``idm_metric``)."""
         policy, state = self.policy, self.state
         rng, device, batch_size = state.rng, self.device, self.config.idm_batch_size
         order = rng.permutation(len(data))
@@ -315,13 +347,15 @@ class IUPETrainer:
         state.idm_optimizer.zero_grad(set_to_none=True)
         policy.eval()
         with torch.no_grad():
-            correct = 0
+            predicted = []
             for start in range(0, len(held), 1024):
                 idx = held[start : start + 1024]
                 output = policy.idm_output(to(data.states[idx]), to(data.next_states[idx]))
-                correct += int((policy.idm_head.mode(output) == to(data.actions[idx])).sum())
+                predicted.append(policy.idm_head.mode(output).cpu().numpy())
         policy.train()
-        self.stats.update({"idm_loss": float(loss.detach()), "idm_accuracy": correct / len(held)})
+        predicted, true = np.concatenate(predicted), data.actions[held]
+        score = r_squared(predicted, true) if self.config.is_continuous else float((predicted == true).mean())
+        self.stats.update({"idm_loss": float(loss.detach()), self.idm_metric: score})
 
     # ------------------------------------------------------------ checkpoints
 

@@ -1,0 +1,125 @@
+"""Continuous actions: the sampling rule on action cells, the Gaussian head's draws, the continuous envs."""
+
+import numpy as np
+import pytest
+import torch
+
+from lerobot_iupe.data.transitions import Transitions
+from lerobot_iupe.policy.algorithm import ActionCells, build_sampled_set, r_squared, success_action_distribution
+from lerobot_iupe.policy.networks import CategoricalHead, GaussianHead
+
+LOW, HIGH = np.array([-1.0, 0.0]), np.array([1.0, 2.0])
+CORNERS = np.array([[-0.9, 0.1], [0.9, 0.1], [-0.9, 1.9], [0.9, 1.9]])
+
+
+def clustered_actions(counts, rng, tag: float) -> Transitions:
+    """Actions scattered tightly around the four corners, ``counts[i]`` around corner i."""
+    actions = np.concatenate([CORNERS[i] + rng.normal(0, 0.02, (n, 2)) for i, n in enumerate(counts)])
+    states = np.stack([np.full(len(actions), tag), np.arange(len(actions), dtype=float)], axis=1)
+    return Transitions(states, actions.astype(np.float32), states + 1.0)
+
+
+@pytest.fixture
+def cells_and_pre():
+    rng = np.random.default_rng(0)
+    pre = clustered_actions([200, 60, 40, 100], rng, tag=0.0)
+    return ActionCells.fit(pre.actions, 4, LOW, HIGH, seed=0), pre
+
+
+def test_kmeans_cells_find_the_clusters_and_are_seeded(cells_and_pre):
+    cells, pre = cells_and_pre
+    classes = cells.assign(pre.actions)
+    # each corner's actions share one cell and the four corners get four different cells
+    corner_cells = [set(classes[a:b]) for a, b in ((0, 200), (200, 260), (260, 300), (300, 400))]
+    assert all(len(c) == 1 for c in corner_cells) and len(set.union(*corner_cells)) == 4
+    again = ActionCells.fit(pre.actions, 4, LOW, HIGH, seed=0)
+    np.testing.assert_array_equal(again.centres, cells.centres)
+    assert ActionCells.fit(pre.actions[:3], 16, LOW, HIGH, seed=0).k == 3  # no more cells than distinct actions
+
+
+def test_continuous_r_zero_gives_exactly_the_pre_demonstrations(cells_and_pre):
+    cells, pre = cells_and_pre
+    successful = clustered_actions([30, 10, 0, 0], np.random.default_rng(1), tag=1.0)
+    p = np.zeros(cells.k)
+    sampled = build_sampled_set(
+        pre,
+        successful,
+        p,
+        len(pre),
+        np.random.default_rng(0),
+        cells.assign(pre.actions),
+        cells.assign(successful.actions),
+    )
+    assert sorted(map(tuple, sampled.states)) == sorted(map(tuple, pre.states))
+
+
+def test_continuous_shares_follow_eq1_on_cells_and_keep_every_pre_cell(cells_and_pre):
+    cells, pre = cells_and_pre
+    rng = np.random.default_rng(1)
+    successful = clustered_actions([30, 10, 0, 0], rng, tag=1.0)
+    episodes = [successful.actions[:30], successful.actions[30:], clustered_actions([0, 0, 5, 5], rng, 2).actions]
+    classes = [cells.assign(a) for a in episodes]
+    p = success_action_distribution(classes, np.array([True, True, False]), cells.k)
+    assert p.sum() == pytest.approx(2 / 3)  # r: two of three rollouts succeeded
+    size = 300
+    sampled = build_sampled_set(
+        pre, successful, p, size, np.random.default_rng(0), cells.assign(pre.actions), cells.assign(successful.actions)
+    )
+    assert len(sampled) == size
+    from_success = sampled.states[:, 0] == 1.0
+    assert from_success.sum() == round(2 / 3 * size)
+    # the successful share per cell ∝ P(cell|E): corner 0 cell gets 1/2, corner 1 cell 1/2 (each run is one cell)
+    success_cells = np.bincount(cells.assign(sampled.actions[from_success]), minlength=cells.k)
+    assert sorted(success_cells[success_cells > 0].tolist()) == [100, 100]
+    # every cell of I_pre keeps at least one sample while r < 1
+    pre_cells = set(cells.assign(sampled.actions[~from_success]).tolist())
+    assert pre_cells == set(range(cells.k))
+
+
+def gaussian_head(mean, log_std) -> tuple[GaussianHead, torch.Tensor]:
+    head = GaussianHead(hidden=1, action_dim=2, low=LOW.tolist(), high=HIGH.tolist())
+    output = torch.tensor([[*mean, *log_std]], dtype=torch.float32).repeat(20000, 1)
+    return head, output
+
+
+def test_gaussian_draws_follow_the_predicted_distribution():
+    # scaled mean (0.2, -0.3), std (0.1, 0.05): in action units mean (0.2, 0.7), std (0.1, 0.05)
+    head, output = gaussian_head([0.2, -0.3], np.log([0.1, 0.05]))
+    draws = head.choose(output, explore=True, generator=torch.Generator().manual_seed(0))
+    np.testing.assert_allclose(draws.mean(0).numpy(), [0.2, 0.7], atol=0.005)
+    np.testing.assert_allclose(draws.std(0).numpy(), [0.1, 0.05], rtol=0.03)
+    np.testing.assert_allclose(head.mode(output)[0].numpy(), [0.2, 0.7], atol=1e-6)
+    # mean distance of a draw from the mode: E|z| of a centred Gaussian with these scales (scaled units)
+    expected = np.linalg.norm(np.random.default_rng(1).normal(0, [0.1, 0.05], (1_000_000, 2)), axis=1).mean()
+    assert head.spread(output, draws) == pytest.approx(expected, rel=0.02)
+    assert head.spread(output, head.mode(output)) == 0.0
+
+
+def test_gaussian_draws_and_modes_stay_within_the_bounds():
+    head, output = gaussian_head([3.0, -0.95], [0.0, 0.0])
+    draws = head.choose(output, explore=True, generator=torch.Generator().manual_seed(0))
+    assert (draws >= torch.tensor(LOW, dtype=torch.float32)).all()
+    assert (draws <= torch.tensor(HIGH, dtype=torch.float32)).all()
+    np.testing.assert_allclose(head.mode(output)[0].numpy(), [1.0, 0.05], atol=1e-6)
+
+
+def test_gaussian_loss_is_the_negative_log_likelihood_minimised_at_the_data():
+    rng = np.random.default_rng(0)
+    actions = torch.tensor(np.stack([rng.normal(0.3, 0.2, 5000), rng.normal(1.5, 0.1, 5000)], 1), dtype=torch.float32)
+    head = GaussianHead(hidden=1, action_dim=2, low=LOW.tolist(), high=HIGH.tolist())
+    # scaled: mean (0.3, 0.5), std (0.2, 0.1)
+    best = torch.tensor([[0.3, 0.5, np.log(0.2), np.log(0.1)]], dtype=torch.float32).repeat(5000, 1)
+    for shifted in ([0.4, 0.5, np.log(0.2), np.log(0.1)], [0.3, 0.5, np.log(0.4), np.log(0.1)]):
+        worse = torch.tensor([shifted], dtype=torch.float32).repeat(5000, 1)
+        assert head.loss(best, actions) < head.loss(worse, actions)
+
+
+def test_categorical_and_gaussian_heads_have_the_same_methods():
+    methods = ("loss", "choose", "mode", "spread", "likelihood", "as_float_action")
+    assert all(callable(getattr(GaussianHead, m)) and callable(getattr(CategoricalHead, m)) for m in methods)
+
+
+def test_r_squared():
+    true = np.array([[0.0, 1.0], [1.0, 3.0], [2.0, 5.0]])
+    assert r_squared(true, true) == 1.0
+    assert r_squared(np.tile(true.mean(0), (3, 1)), true) == pytest.approx(0.0)
