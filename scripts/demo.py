@@ -8,6 +8,7 @@
 
     python scripts/demo.py                      # CartPole, the `make demo` default
     python scripts/demo.py --env mountaincar    # also: acrobot, maze3, maze5, maze10
+    python scripts/demo.py --env lunarlander    # continuous actions (also: so101_pickplace)
 The same code path as `lerobot-iupe-benchmark` (one IUPE run of seed 0), quiet: one line per stage and a progress
 bar while training; every command's full output is in a log file under the output folder.
 """
@@ -18,19 +19,21 @@ import shutil
 import time
 from pathlib import Path
 
-from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark, write_report
+from lerobot_iupe.benchmark import CHECKPOINT, CONTINUOUS, PRESETS, Benchmark, write_report
+
+ENVS = {**PRESETS, **CONTINUOUS}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", choices=sorted(PRESETS), default="cartpole")
+    parser.add_argument("--env", choices=sorted(ENVS), default="cartpole")
     parser.add_argument("--eval_episodes", type=int, default=50)
     args = parser.parse_args()
     logging.disable(logging.WARNING)  # LeRobot's evaluation logs each batch; the table below says it all
     out = Path("outputs/demo" if args.env == "cartpole" else f"outputs/demo-{args.env}")
     shutil.rmtree(out, ignore_errors=True)
     bench = Benchmark(out, eval_episodes=args.eval_episodes, quiet=True)
-    preset = PRESETS[args.env]
+    preset = ENVS[args.env]
     start = time.perf_counter()
     print(f"[1/3] collecting the {args.env} datasets (expert without actions, random pre-demonstrations)", flush=True)
     runs = bench.plan("demo", args.env, preset, ["iupe"], [0])

@@ -59,8 +59,8 @@ class IUPEConfig(PreTrainedConfig):
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
     rollout_episodes: int = 20
-    # IDM epochs per cycle and batch size; 0 = 2 and 256 for vector states, 5 and 64 for images (a CNN needs
-    # more, smaller steps: measured on Maze 5x5, 3 epochs of batch 256 stayed at chance level).
+    # IDM epochs per cycle and batch size; 0 = 2 and 256 for vector states (10 epochs for continuous actions), 5
+    # and 64 for images (a CNN needs more, smaller steps: on Maze 5x5, 3 epochs of batch 256 stayed at chance).
     idm_epochs: int = 0
     idm_batch_size: int = 0
     idm_lr: float = 1e-3
@@ -177,7 +177,6 @@ class IUPEConfig(PreTrainedConfig):
         # make_policy sets output_features from the dataset's actions: {} for state-only data.
         self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
         # Defaults that depend on the observation kind, resolved once so that config.json records what ran.
-        self.idm_epochs = self.idm_epochs or (5 if self.is_image else 2)
         self.idm_batch_size = self.idm_batch_size or (64 if self.is_image else 256)
 
     def resolve_dataset(self, dataset_meta) -> None:
@@ -206,6 +205,9 @@ class IUPEConfig(PreTrainedConfig):
                 self.action_high = [float(x) for x in space.high]
                 self.action_names = action_names(env_cfg)
         self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
+        # A Gaussian IDM needs more passes than a categorical one: with 2 epochs a cycle LunarLander's held-out R²
+        # went 0.07 → 0.29 → 0.60 over three cycles, with 10 epochs 0.78 in the first (40 random episodes).
+        self.idm_epochs = self.idm_epochs or (5 if self.is_image else 10 if self.is_continuous else 2)
         if dataset_meta is not None and self.supervised and ACTION not in dataset_meta.features:
             raise ValueError(
                 f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "

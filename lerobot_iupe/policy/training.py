@@ -121,12 +121,10 @@ class IUPETrainer:
                 f"the expert dataset at {meta.root} records no environment (meta/iupe.json); "
                 "pass --env.type=<its env> (and --env.<field>=… as for lerobot-eval)"
             )
-        self.env_cfg = env_config_from_settings(cfg.env_settings)
+        env_cfg = env_config_from_settings(cfg.env_settings)
         for key in cfg.observation_keys:
-            env = env_spec(self.env_cfg, key)
-            check_compatible(env, dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
-        env_key_of = {v: k for k, v in env_observation_keys(self.env_cfg).items()}
-        self.env_keys = [env_key_of[key] for key in cfg.observation_keys]
+            check_compatible(env_spec(env_cfg, key), dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
+        self.use_env(env_cfg)
         if cfg.pre_demos_repo_id is None:
             raise ValueError("--policy.pre_demos_repo_id is required (random pre-demonstrations with actions)")
         root = cfg.pre_demos_root
@@ -150,6 +148,17 @@ class IUPETrainer:
             )
         self.layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
         return pre
+
+    def use_env(self, env_cfg) -> None:
+        """Roll out in ``env_cfg`` (any LeRobot env type whose ``features_map`` gives the policy's observations)."""
+        env_key_of = {v: k for k, v in env_observation_keys(env_cfg).items()}
+        missing = [k for k in self.config.observation_keys if k not in env_key_of]
+        if missing:
+            raise ValueError(
+                f"env {env_cfg.type} gives no {missing} (its observations: {sorted(env_key_of)}); "
+                "the policy reads what the expert dataset holds"
+            )
+        self.env_cfg, self.env_keys, self.envs = env_cfg, [env_key_of[k] for k in self.config.observation_keys], []
 
     def start(self) -> None:
         cfg = self.config

@@ -1,0 +1,118 @@
+"""IUPE with continuous actions through the real LeRobot CLIs: LunarLander learning, lerobot-eval on a continuous
+checkpoint, the SO-101 plugin env (several observation keys, lerobot-train's own --env flags, no meta/iupe.json),
+and rollouts in a lerobot_env_* plugin's own env type."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from conftest import CHECKPOINT, collect, evaluate, run_cli, train_args
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.datasets import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_iupe.data.readers import load_transitions
+from lerobot_iupe.envs.configs import action_space_of, env_settings
+from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
+from lerobot_iupe.policy.training import IUPETrainer
+
+
+@pytest.fixture(scope="session")
+def lunar_data(data_dir):
+    args = ("--env.type=lunarlander", "--agent=expert", "--episodes=5")
+    return {
+        "expert": collect(data_dir, "lunar-expert", *args),
+        "expert-actions": collect(data_dir, "lunar-expert-actions", *args, "--keep_actions=true"),
+        "random": collect(
+            data_dir, "lunar-random", "--env.type=lunarlander", "--agent=random", "--episodes=40", "--seed=1000"
+        ),  # fmt: skip
+    }
+
+
+@pytest.fixture(scope="session")
+def lunar_run(lunar_data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "lunar"
+    flags = ["--steps=300", "--batch_size=64", "--save_freq=300", "--policy.cycle_steps=100"]
+    run_cli("lerobot-train", *train_args(lunar_data["expert"], lunar_data["random"], out, *flags,
+                                          "--policy.rollout_episodes=2"))  # fmt: skip
+    return out
+
+
+def main_engine_agreement(predicted: np.ndarray, true: np.ndarray) -> float:
+    """Labels scored by their effect: LunarLander's main engine fires only for a[0] > 0 (a dead zone below)."""
+    return float(((predicted[:, 0] > 0) == (true[:, 0] > 0)).mean())
+
+
+def test_iupe_learns_lunarlander_action_effects_from_state_only_demos(lunar_run, lunar_data):
+    policy = IUPEPolicy.from_pretrained(lunar_run / CHECKPOINT).eval()
+    assert policy.config.is_continuous and policy.config.action_names == ["main_engine", "lateral_engines"]
+    records = (lunar_run / CHECKPOINT / "iupe_cycles.jsonl").read_text().splitlines()
+    r2 = [json.loads(line)["idm_r2"] for line in records]
+    assert len(r2) == 3 and r2[-1] > 0.4 and r2[-1] > r2[0]  # the IDM learns the action effects cycle by cycle
+    truth = load_transitions(
+        LeRobotDataset("local/x", root=lunar_data["expert-actions"]), policy.config.observation_keys
+    )
+    states, next_states = torch.as_tensor(truth.states), torch.as_tensor(truth.next_states)
+    with torch.no_grad():
+        labels = policy.idm_head.mode(policy.idm_output(states, next_states)).numpy()
+        acted = policy.pm_head.mode(policy.pm_output(states)).numpy()
+    fires = (truth.actions[:, 0] > 0).mean()
+    chance = max(fires, 1 - fires)
+    # the expert's hidden actions, recovered by their effect (IDM) and imitated (policy), well above chance
+    assert main_engine_agreement(labels, truth.actions) > chance + 0.1
+    assert main_engine_agreement(acted, truth.actions) > chance + 0.1
+    low, high = np.array(policy.config.action_low), np.array(policy.config.action_high)
+    assert (acted >= low).all() and (acted <= high).all()
+
+
+def test_lerobot_eval_runs_a_continuous_checkpoint(lunar_run, tmp_path):
+    overall = evaluate(lunar_run / CHECKPOINT, tmp_path / "eval", "--env.type=lunarlander", episodes=2)
+    assert overall["n_episodes"] == 2 and np.isfinite(overall["avg_sum_reward"])
+
+
+def test_so101_plugin_env_trains_from_lerobot_train_env_flags_without_package_metadata(data_dir, tmp_path):
+    env_args = ("--env.type=so101_pickplace", "--env.episode_length=30")
+    expert = collect(data_dir, "so101-expert", *env_args, "--agent=expert", "--episodes=2")
+    random = collect(data_dir, "so101-random", *env_args, "--agent=random", "--episodes=6", "--seed=1000")
+    bare = tmp_path / "so101-expert-bare"  # as if written by another tool: no meta/iupe.json
+    shutil.copytree(expert, bare)
+    (bare / "meta" / "iupe.json").unlink()
+    out = tmp_path / "run"
+    flags = ["--steps=20", "--batch_size=16", "--save_freq=20", "--policy.cycle_steps=10",
+             "--policy.rollout_episodes=2", *env_args, "--env_eval_freq=0", "--eval_freq=0"]  # fmt: skip
+    run_cli("lerobot-train", *train_args(bare, random, out, *flags))
+    policy = IUPEPolicy.from_pretrained(out / CHECKPOINT)
+    assert policy.config.observation_keys == [OBS_STATE, OBS_ENV_STATE]
+    assert policy.config.env_settings["type"] == "so101_pickplace"
+    assert policy.config.action_low == [-1.0, -1.0, -1.0, 0.0] and policy.config.action_high == [1.0] * 4
+    records = (out / CHECKPOINT / "iupe_cycles.jsonl").read_text().splitlines()
+    assert len(records) == 2
+
+
+def test_rollouts_run_in_a_lerobot_env_plugins_own_env_type():
+    from lerobot_env_so101.configuration_so101 import SO101Env
+
+    env_cfg = SO101Env(episode_length=6)  # the plugin's type, made by LeRobot's make_env
+    space = action_space_of(env_cfg)
+    config = IUPEConfig(
+        input_features={
+            OBS_STATE: PolicyFeature(type=FeatureType.STATE, shape=(14,)),
+            OBS_ENV_STATE: PolicyFeature(type=FeatureType.ENV, shape=(3,)),
+        },
+        output_features={ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(4,))},
+        action_low=space.low.tolist(),
+        action_high=space.high.tolist(),
+        env_settings=env_settings(env_cfg),
+        device="cpu",
+    )
+    policy = IUPEPolicy(config)
+    trainer = IUPETrainer(policy, dataset_meta=None, seed=0)
+    trainer.use_env(env_cfg)
+    episodes, successes, returns = trainer.rollout(2, seed=0, explore=True)
+    assert [len(e) for e in episodes] == [6, 6]
+    assert episodes[0].states.shape == (6, 17) and episodes[0].actions.shape == (6, 4)
+    assert (episodes[0].actions >= space.low).all() and (episodes[0].actions <= space.high).all()
+    np.testing.assert_array_equal(episodes[0].states[1:], episodes[0].next_states[:-1])  # aligned steps
+    assert successes.tolist() == [False, False]  # the plugin reports `succeed`, which LeRobot does not read
