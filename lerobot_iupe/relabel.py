@@ -137,6 +137,11 @@ def load_idm(path: str, device: str = "cpu") -> IUPEPolicy:
         policy = IUPEPolicy.from_pretrained(path)
     except OSError as error:
         raise FileNotFoundError(f"--policy.path={path}: cannot load a checkpoint from there ({error})") from error
+    if policy.config.is_continuous:
+        raise ValueError(
+            f"--policy.path={path} predicts continuous actions {policy.config.action_names}; this version writes "
+            "discrete labels only (continuous labels come with relabelling any LeRobot dataset)"
+        )
     return policy.to(device).eval()
 
 

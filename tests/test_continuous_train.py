@@ -50,7 +50,7 @@ def test_iupe_learns_lunarlander_action_effects_from_state_only_demos(lunar_run,
     assert policy.config.is_continuous and policy.config.action_names == ["main_engine", "lateral_engines"]
     records = (lunar_run / CHECKPOINT / "iupe_cycles.jsonl").read_text().splitlines()
     r2 = [json.loads(line)["idm_r2"] for line in records]
-    assert len(r2) == 3 and r2[-1] > 0.4 and r2[-1] > r2[0]  # the IDM learns the action effects cycle by cycle
+    assert len(r2) == 3 and min(r2) > 0.5  # the IDM learns the action effects from random pre-demonstrations
     truth = load_transitions(
         LeRobotDataset("local/x", root=lunar_data["expert-actions"]), policy.config.observation_keys
     )
@@ -81,7 +81,7 @@ def test_so101_plugin_env_trains_from_lerobot_train_env_flags_without_package_me
     (bare / "meta" / "iupe.json").unlink()
     out = tmp_path / "run"
     flags = ["--steps=20", "--batch_size=16", "--save_freq=20", "--policy.cycle_steps=10",
-             "--policy.rollout_episodes=2", *env_args, "--env_eval_freq=0", "--eval_freq=0"]  # fmt: skip
+             "--policy.rollout_episodes=2", *env_args, "--env_eval_freq=0"]  # fmt: skip
     run_cli("lerobot-train", *train_args(bare, random, out, *flags))
     policy = IUPEPolicy.from_pretrained(out / CHECKPOINT)
     assert policy.config.observation_keys == [OBS_STATE, OBS_ENV_STATE]
@@ -116,3 +116,16 @@ def test_rollouts_run_in_a_lerobot_env_plugins_own_env_type():
     assert (episodes[0].actions >= space.low).all() and (episodes[0].actions <= space.high).all()
     np.testing.assert_array_equal(episodes[0].states[1:], episodes[0].next_states[:-1])  # aligned steps
     assert successes.tolist() == [False, False]  # the plugin reports `succeed`, which LeRobot does not read
+
+
+def test_relabelling_with_a_continuous_checkpoint_is_refused_and_writes_nothing(lunar_run, lunar_data, tmp_path):
+    dataset = tmp_path / "lunar-expert"
+    shutil.copytree(lunar_data["expert"], dataset)
+    files = sorted(p.relative_to(dataset) for p in dataset.rglob("*"))
+    result = run_cli(
+        "lerobot-iupe-relabel", f"--policy.path={lunar_run / CHECKPOINT}", "--dataset.repo_id=local/lunar-expert",
+        f"--dataset.root={dataset}", check=False,
+    )  # fmt: skip
+    assert result.returncode == 2 and "continuous actions" in result.stderr and "--policy.path" in result.stderr
+    assert sorted(p.relative_to(dataset) for p in dataset.rglob("*")) == files
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lunar-expert"]  # no staged copy left beside it

@@ -89,8 +89,11 @@ class EnvPreset:
     @property
     def eval_modes(self) -> tuple[str, ...]:
         """Every maze checkpoint is evaluated both ways (an argmax policy that bumps into a wall stays put until
-        the step cap); vector policies by argmax."""
-        return ("argmax", "sample") if self.is_maze else ("argmax",)
+        the step cap), and every continuous one (the Gaussian's mode — `argmax` — or a draw: LunarLander's side
+        engines fire only for |a| > 0.5, which a mean of mixed labels may never reach); discrete vector policies by
+        argmax."""
+        continuous = not getattr(self.env_config(), "n_actions", 0)
+        return ("argmax", "sample") if self.is_maze or continuous else ("argmax",)
 
     @property
     def layouts(self) -> list[str | None]:

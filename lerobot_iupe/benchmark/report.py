@@ -13,6 +13,7 @@ from lerobot_iupe.benchmark.presets import (
     ABLATION,
     CONTINUOUS,
     LOW_DATA,
+    LOW_DATA_CONTINUOUS_METHODS,
     LOW_DATA_METHODS,
     PAPER_TABLE1,
     PAPER_TABLE2,
@@ -159,14 +160,19 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
         lines += ["", note]
     continuous = [e for e in CONTINUOUS if _group(records, table="continuous", env=e)]
     if continuous:
-        lines += ["", "## Continuous actions: P / AER (evaluation by the Gaussian's mode, `argmax`)", ""]
-        lines += _table(records, "continuous", continuous, methods, lambda e: None, "argmax")
-        lines += ["", "## Continuous actions: success rate (LeRobot's `is_success`), mean ± std over seeds", ""]
-        lines += _table(records, "continuous", continuous, methods, lambda e: None, "argmax", cell=_success_cell)
+        for mode, rule in (("argmax", "the Gaussian's mode"), ("sample", "a draw from the Gaussian")):
+            lines += ["", f"## Continuous actions, {mode} evaluation ({rule}): P / AER", ""]
+            lines += _table(records, "continuous", continuous, methods, lambda e: None, mode)
+            lines += ["", f"Success rate (LeRobot's `is_success`), {mode} evaluation, mean ± std over seeds:", ""]
+            lines += _table(records, "continuous", continuous, methods, lambda e: None, mode, cell=_success_cell)
     low = [e for e in LOW_DATA if _group(records, table="lowdata", env=e)]
     if low:
         lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions (argmax evaluation)", ""]
         lines += _table(records, "lowdata", low, LOW_DATA_METHODS, lambda e: None, "argmax")
+        if any(e in CONTINUOUS for e in low):
+            lines += ["", "Low data, continuous actions, sample evaluation:", ""]
+            cont = [e for e in low if e in CONTINUOUS]
+            lines += _table(records, "lowdata", cont, LOW_DATA_CONTINUOUS_METHODS, lambda e: None, "sample")
     lines += ["", "## Where the time goes (mean seconds per training run)", ""]
     lines += [
         "| table | env | method | runs | train (wall) | rollouts | IDM training | data loading | PM + other | eval |",

@@ -5,6 +5,10 @@ Examples:
         --dataset.repo_id=local/cartpole-expert --dataset.root=data/cartpole-expert --seed=0
     lerobot-iupe-collect --env.type=maze --env.size=5 --agent=random --random_start=true --episodes=200 \
         --dataset.repo_id=local/maze5-random --dataset.root=data/maze5-random --seed=1000
+    lerobot-iupe-collect --env.type=so101_pickplace --agent=random --episodes=100 \
+        --dataset.repo_id=local/so101-random --dataset.root=data/so101-random --seed=1000
+Env types: cartpole, acrobot, mountaincar, maze (discrete actions, int64 ids), lunarlander, so101_pickplace
+(continuous actions, float32 with the env's action names).
 Expert datasets carry no `action` column unless --keep_actions=true; random datasets always carry it.
 """
 
