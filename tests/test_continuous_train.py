@@ -68,7 +68,9 @@ def test_iupe_learns_lunarlander_action_effects_from_state_only_demos(lunar_run,
 
 
 def test_lerobot_eval_runs_a_continuous_checkpoint(lunar_run, tmp_path):
-    overall = evaluate(lunar_run / CHECKPOINT, tmp_path / "eval", "--env.type=lunarlander", episodes=2)
+    overall = evaluate(
+        lunar_run / CHECKPOINT, tmp_path / "eval", "--env.type=lunarlander", "--env.episode_length=100", episodes=2
+    )
     assert overall["n_episodes"] == 2 and np.isfinite(overall["avg_sum_reward"])
 
 

@@ -44,11 +44,11 @@ def make_dataset_without_observation(root):
         "local/no-obs",
         fps=10,
         root=root,
-        features={"observation.environment_state": {"dtype": "float32", "shape": (2,), "names": None}},
+        features={"next.reward": {"dtype": "float32", "shape": (1,), "names": None}},
         use_videos=False,
     )
     for _ in range(3):
-        dataset.add_frame({"observation.environment_state": np.array([0.0, 1.0], dtype=np.float32), "task": "t"})
+        dataset.add_frame({"next.reward": np.array([1.0], dtype=np.float32), "task": "t"})
     dataset.save_episode()
     dataset.finalize()
     return root
@@ -65,7 +65,7 @@ def relabel_env(root, env: dict):
 @pytest.mark.parametrize(
     ("case", "message"),
     [
-        ("no_observation", "neither 'observation.state' nor 'observation.image'"),
+        ("no_observation", "the expert dataset has no observation IUPE can read"),
         ("pre_without_action", "have no 'action' column"),
         ("pre_other_state_size", "'observation.state' has shape (2,) in the pre-demonstrations local/mc but (4,)"),
         ("pre_other_action_count", "disagree on the env type: 'mountaincar' vs 'cartpole'"),
