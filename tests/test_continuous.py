@@ -123,3 +123,28 @@ def test_r_squared():
     true = np.array([[0.0, 1.0], [1.0, 3.0], [2.0, 5.0]])
     assert r_squared(true, true) == 1.0
     assert r_squared(np.tile(true.mean(0), (3, 1)), true) == pytest.approx(0.0)
+
+
+def test_bad_continuous_settings_are_refused_naming_the_flag():
+    from lerobot.configs import FeatureType, PolicyFeature
+
+    from lerobot_iupe.envs.configs import SO101PickPlaceEnvConfig
+    from lerobot_iupe.policy import IUPEConfig
+
+    with pytest.raises(ValueError, match="--policy.action_cells must be at least 1"):
+        IUPEConfig(action_cells=0)
+    with pytest.raises(ValueError, match="--policy.action_low and --policy.action_high must be given together"):
+        IUPEConfig(action_low=[-1.0, -1.0], action_high=[1.0])
+    with pytest.raises(ValueError, match="--env.action_scale must be positive"):
+        SO101PickPlaceEnvConfig(action_scale=0.0).validate()
+    state = PolicyFeature(type=FeatureType.STATE, shape=(3,))
+    image = PolicyFeature(type=FeatureType.VISUAL, shape=(3, 8, 8))
+    unknown = IUPEConfig(input_features={"observation.state": state}, observation_keys=["observation.nothing"])
+    with pytest.raises(ValueError, match=r"--policy.observation_keys names \['observation.nothing'\]"):
+        unknown.validate_features()
+    mixed = IUPEConfig(
+        input_features={"observation.state": state, "observation.image": image},
+        observation_keys=["observation.image", "observation.state"],
+    )
+    with pytest.raises(ValueError, match="mixes images and vectors"):
+        mixed.validate_features()

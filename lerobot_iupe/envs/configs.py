@@ -5,11 +5,14 @@ of any LeRobot env config (``env_observation_keys``, ``env_settings``, ``make_en
 from __future__ import annotations
 
 import dataclasses
+import sys
 from dataclasses import dataclass, field
 
+import draccus
 import gymnasium as gym
 import numpy as np
 from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.configs.parser import get_cli_overrides, get_type_arg
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
@@ -189,7 +192,7 @@ class LunarLanderEnvConfig(ClassicEnvConfig):
 
 @EnvConfig.register_subclass("so101_pickplace")
 @dataclass
-class SO101PickPlaceEnvConfig(IUPEEnvConfig):
+class SO101PickPlaceEnvConfig(ClassicEnvConfig):
     """The ``lerobot_env_so101`` plugin's pick-and-place task (random block and goal positions) with its success
     as ``info["is_success"]``: 4-D action [dx, dy, dz, grasp], ``agent_pos`` (14) → ``observation.state``,
     ``environment_state`` (block and goal positions, 6) → ``observation.environment_state``."""
@@ -218,21 +221,16 @@ class SO101PickPlaceEnvConfig(IUPEEnvConfig):
             raise ValueError(f"--env.episode_length must be at least 1, got {self.episode_length}")
 
     @property
-    def max_episode_steps(self) -> int:
-        return self.episode_length
-
-    @property
     def gym_kwargs(self) -> dict:
         return {
+            **super().gym_kwargs,
             "action_scale": self.action_scale,
             "random_block_position": self.random_block_position,
-            "max_episode_steps": self.episode_length,
         }
 
     def settings(self) -> dict:
         return {
-            "type": self.type,
-            "episode_length": self.episode_length,
+            **super().settings(),
             "action_scale": self.action_scale,
             "random_block_position": self.random_block_position,
         }
@@ -263,11 +261,6 @@ def env_config_from_settings(settings: dict) -> EnvConfig:
 def env_config_from_command_line(args: list[str] | None = None) -> EnvConfig | None:
     """The env of ``lerobot-train``'s own ``--env.type=… --env.<field>=…`` flags, or None. LeRobot builds the
     policy from the dataset alone (``make_policy(ds_meta=…)``), so the policy reads the flags it was given."""
-    import sys
-
-    import draccus
-    from lerobot.configs.parser import get_cli_overrides, get_type_arg
-
     args = sys.argv[1:] if args is None else args
     env_type = get_type_arg("env", args)
     if env_type is None:
