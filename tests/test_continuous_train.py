@@ -120,14 +120,20 @@ def test_rollouts_run_in_a_lerobot_env_plugins_own_env_type():
     assert successes.tolist() == [False, False]  # the plugin reports `succeed`, which LeRobot does not read
 
 
-def test_relabelling_with_a_continuous_checkpoint_is_refused_and_writes_nothing(lunar_run, lunar_data, tmp_path):
+def test_a_full_iupe_checkpoint_relabels_state_only_lunarlander_data_with_named_float_actions(
+    lunar_run, lunar_data, tmp_path
+):
     dataset = tmp_path / "lunar-expert"
     shutil.copytree(lunar_data["expert"], dataset)
-    files = sorted(p.relative_to(dataset) for p in dataset.rglob("*"))
-    result = run_cli(
+    run_cli(
         "lerobot-iupe-relabel", f"--policy.path={lunar_run / CHECKPOINT}", "--dataset.repo_id=local/lunar-expert",
-        f"--dataset.root={dataset}", check=False,
+        f"--dataset.root={dataset}",
     )  # fmt: skip
-    assert result.returncode == 2 and "continuous actions" in result.stderr and "--policy.path" in result.stderr
-    assert sorted(p.relative_to(dataset) for p in dataset.rglob("*")) == files
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["lunar-expert"]  # no staged copy left beside it
+    relabelled = LeRobotDataset("local/lunar-expert", root=dataset)
+    feature = relabelled.meta.features[ACTION]
+    assert feature["dtype"] == "float32" and tuple(feature["shape"]) == (2,)
+    assert feature["names"] == ["main_engine", "lateral_engines"]
+    labels = np.asarray(relabelled.hf_dataset.with_format("numpy")[ACTION])
+    assert labels.shape == (relabelled.meta.total_frames, 2) and labels.dtype == np.float32
+    assert (labels >= -1).all() and (labels <= 1).all() and labels.std(axis=0).min() > 0.01
+    np.testing.assert_allclose(relabelled.meta.stats[ACTION]["mean"], labels.mean(axis=0), rtol=1e-5, atol=1e-6)

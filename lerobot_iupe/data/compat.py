@@ -79,9 +79,10 @@ def env_spec(env_cfg: EnvConfig, key: str) -> DataSpec:
     )
 
 
-def checkpoint_spec(config, source: str = "the checkpoint") -> DataSpec:
-    """An IUPE policy config: the (first) observation it reads (policies see images as (C, H, W)) and its env."""
-    key = config.observation_key
+def checkpoint_spec(config, key: str | None = None, source: str = "the checkpoint --policy.path") -> DataSpec:
+    """An IUPE policy config: an observation it reads (default: the first; policies see images as (C, H, W)), the
+    fps of its training data and its env (when it was trained with one)."""
+    key = key or config.observation_key
     shape = tuple(config.input_features[key].shape)
     if config.input_features[key].type is FeatureType.VISUAL:
         shape = (shape[1], shape[2], shape[0])
@@ -90,11 +91,11 @@ def checkpoint_spec(config, source: str = "the checkpoint") -> DataSpec:
         source=source,
         observation_key=key,
         observation_shape=shape,
-        fps=env_cfg.fps if env_cfg else None,
+        fps=config.fps or (env_cfg.fps if env_cfg else None),
         env_type=env_cfg.type if env_cfg else None,
         n_actions=config.n_actions or None,
         action_dim=config.action_dim if config.is_continuous else None,
-        available=(key,),
+        available=tuple(config.observation_keys),
     )
 
 

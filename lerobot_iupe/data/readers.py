@@ -86,6 +86,69 @@ def video_chunks(meta: LeRobotDatasetMetadata, key: str, batch_size: int, backen
             yield Chunk(start, frames, stop == end - 1)
 
 
+@dataclass(frozen=True)
+class LabelSpan:
+    """Frames ``start … stop - 1`` of episode ``episode`` (frames ``first … last``, global indices) to be labelled
+    together; the frames ``lo … hi`` they need around them (the IDM's window, clamped into the episode)."""
+
+    episode: int
+    first: int
+    last: int
+    start: int
+    stop: int
+    lo: int
+    hi: int
+
+
+def label_spans(
+    bounds: list[tuple[int, int]], batch_size: int, offsets: list[int], episodes: list[int] | None = None
+) -> list[LabelSpan]:
+    """Spans of at most ``batch_size`` frames covering every frame with a successor of the chosen episodes
+    (default: all); a span never crosses an episode, so its labels do not depend on which others are labelled."""
+    spans = []
+    for episode in range(len(bounds)) if episodes is None else episodes:
+        first, end = bounds[episode]
+        last = end - 1
+        for start in range(first, last, batch_size):
+            stop = min(start + batch_size, last)
+            lo, hi = max(first, start + min(offsets)), min(last, stop - 1 + max(offsets))
+            spans.append(LabelSpan(episode, first, last, start, stop, lo, hi))
+    return spans
+
+
+class FrameReader:
+    """Frames ``lo … hi`` of one episode for a set of observation keys, read from the files as needed (memory
+    follows the span, not the dataset): vectors concatenated (N, D), images uint8 (N, C, H, W) stacked as
+    channels. Vectors and PNG images come from Arrow slices of the parquet files, video by one seek per span."""
+
+    def __init__(self, dataset: LeRobotDataset, keys: list[str], video_backend: str = "pyav"):
+        self.dataset, self.meta, self.keys, self.backend = dataset, dataset.meta, keys, video_backend
+        self.first_index = int(column_array(dataset.hf_dataset, "index")[0]) if len(dataset.hf_dataset) else 0
+
+    def frames(self, episode: int, first: int, lo: int, hi: int) -> Tensor:
+        parts = [self._read(key, episode, first, lo, hi) for key in self.keys]
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+
+    def _read(self, key: str, episode: int, first: int, lo: int, hi: int) -> Tensor:
+        dtype = self.meta.features[key]["dtype"]
+        if dtype == "video":
+            video = self.meta.root / self.meta.get_video_file_path(episode, key)
+            offset = float(self.meta.episodes[episode][f"videos/{key}/from_timestamp"])
+            timestamps = [offset + (i - first) / self.meta.fps for i in range(lo, hi + 1)]
+            tolerance = 1 / self.meta.fps - 1e-4
+            return decode_video_frames(video, timestamps, tolerance, backend=self.backend, return_uint8=True)
+        rows = slice(lo - self.first_index, hi + 1 - self.first_index)
+        if dtype == "image":
+            images = np.asarray(self.dataset.hf_dataset.with_format("numpy")[rows][key])
+            return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2)))
+        column = self.dataset.hf_dataset.data.slice(rows.start, rows.stop - rows.start).column(key).combine_chunks()
+        if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
+            values = column.flatten().to_numpy(zero_copy_only=False).reshape(len(column), -1)
+        else:
+            values = column.to_numpy(zero_copy_only=False).reshape(len(column), -1)
+        return torch.from_numpy(values.astype(np.float32))
+
+
 def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
     """Run ``chunks`` in a background thread so decoding the next chunk overlaps labelling this one
     (by hand: torch's DataLoader would need a Dataset of chunks and worker processes for what one thread does)."""
@@ -137,6 +200,13 @@ def load_transitions(dataset: LeRobotDataset, keys: str | list[str], video_backe
     return Transitions(states[has_next], actions[has_next], states[has_next + 1])
 
 
+def window_indices(t: np.ndarray, offsets: list[int], first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    """(len(t), len(offsets)) indices t + offset, clamped into each row's episode [first, last] (inclusive): an
+    episode's edges repeat its first or last frame."""
+    t, first, last = np.asarray(t)[:, None], np.asarray(first)[:, None], np.asarray(last)[:, None]
+    return np.clip(t + np.asarray(offsets, dtype=np.int64)[None, :], first, last)
+
+
 class ExpertFrames:
     """The expert dataset in memory, so that a training batch needs only its frames' ``index`` from LeRobot's
     loader: with ``delta_timestamps`` for s_{t+1} its per-item cost is 12× higher (1.04 vs 0.08 ms measured on a
@@ -147,6 +217,10 @@ class ExpertFrames:
         self.row_of_index = np.full(int(index.max()) + 1, -1, dtype=np.int64)
         self.row_of_index[index] = np.arange(len(index))
         self.episodes = column_array(dataset.hf_dataset, "episode_index").astype(np.int64)
+        starts = np.flatnonzero(np.r_[True, self.episodes[1:] != self.episodes[:-1]])
+        ends = np.r_[starts[1:], len(self.episodes)] - 1
+        lengths = ends - starts + 1
+        self.first_row, self.last_row = np.repeat(starts, lengths), np.repeat(ends, lengths)
         self.states = torch.as_tensor(observation_array(dataset, keys), device=device)
         self.actions = torch.as_tensor(action_array(dataset), device=device) if with_actions else None
 
@@ -158,6 +232,11 @@ class ExpertFrames:
         if (rows < 0).any():
             raise KeyError("the batch holds frame indices that are not in the expert dataset")
         return rows
+
+    def windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
+        """Frames (B, len(offsets), …) at ``offsets`` around each row, clamped into its episode."""
+        index = window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])
+        return self.states[torch.as_tensor(index, device=self.states.device)]
 
     def pairs(self, rows: np.ndarray) -> tuple[Tensor, Tensor]:
         """(s_t, s_{t+1}) of these rows; LeRobot's sampler never draws an episode's last frame

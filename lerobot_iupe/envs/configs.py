@@ -174,8 +174,9 @@ class MazeEnvConfig(IUPEEnvConfig):
 @EnvConfig.register_subclass("lunarlander")
 @dataclass
 class LunarLanderEnvConfig(ClassicEnvConfig):
-    """Gymnasium's LunarLanderContinuous-v3: 2-D action [main engine, lateral engines] in [-1, 1]; the 8-D state is
-    the ``environment_state`` (see ``envs/lunar.py`` for why, and for the safe-landing success rule)."""
+    """Gymnasium's LunarLanderContinuous-v3: 2-D action [main engine, lateral engines] in [-1, 1]; the lander's
+    kinematics (6) are ``observation.state``, its leg contacts (2) ``observation.environment_state`` (see
+    ``envs/lunar.py`` for why, and for the safe-landing success rule)."""
 
     task: str | None = "LunarLanderContinuous-v3"
     fps: int = 50
@@ -183,10 +184,13 @@ class LunarLanderEnvConfig(ClassicEnvConfig):
     features: dict[str, PolicyFeature] = field(
         default_factory=lambda: {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(2,)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(8,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(2,)),
         }
     )
-    features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, "environment_state": OBS_ENV_STATE})
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
+    )
     action_names: tuple[str, ...] = ("main_engine", "lateral_engines")
 
 

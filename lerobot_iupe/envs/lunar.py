@@ -1,8 +1,10 @@
 """Gymnasium's LunarLanderContinuous-v3, shaped for LeRobot (``--env.type=lunarlander``).
 
-The whole 8-D state (position, velocity, angle, angular velocity, leg contacts) is the env's
-``environment_state`` (→ ``observation.environment_state``): LeRobot's ACT and Diffusion refuse inputs without an
-image or an environment state, so datasets of this env train them as they are.
+The 8-D state is split as LeRobot's conventions ask: the lander's own position, velocity, angle and angular
+velocity (6) are ``agent_pos`` (→ ``observation.state``), its two leg contacts with the ground (2) the
+``environment_state`` (→ ``observation.environment_state``). LeRobot's ACT refuses inputs without an image or an
+environment state and reads ``observation.state`` in every forward pass, so datasets of this env train it as they
+are. Policies that concatenate the keys in that order (IUPE does) see gymnasium's 8-D vector unchanged.
 
 Success (``info["is_success"]``), a safe landing: the episode ends with the lander at rest (asleep in Box2D, which
 is when gymnasium's +100 is paid), both legs touching the ground and its centre between the flags (|x| ≤ 0.2).
@@ -18,7 +20,8 @@ PAD_HALF_WIDTH = 0.2  # the flags stand at x = ±0.2 in the observation's units
 
 
 class LunarLanderEnv(gym.Wrapper):
-    """Dict observation ``environment_state`` and a safe landing as ``info["is_success"]``."""
+    """Dict observation ``agent_pos`` (6) + ``environment_state`` (2) and a safe landing as
+    ``info["is_success"]``."""
 
     task_description = "Land the lander gently on the pad between the flags."
 
@@ -26,7 +29,10 @@ class LunarLanderEnv(gym.Wrapper):
         super().__init__(LunarLander(render_mode=render_mode, continuous=True))
         inner = self.env.observation_space
         self.observation_space = gym.spaces.Dict(
-            {"environment_state": gym.spaces.Box(inner.low, inner.high, dtype=np.float32)}
+            {
+                "agent_pos": gym.spaces.Box(inner.low[:6], inner.high[:6], dtype=np.float32),
+                "environment_state": gym.spaces.Box(inner.low[6:], inner.high[6:], dtype=np.float32),
+            }
         )
         self.action_space = self.env.action_space
         self.metadata = dict(self.env.metadata)
@@ -37,7 +43,7 @@ class LunarLanderEnv(gym.Wrapper):
         obs, info = self.env.reset(seed=seed)
         self._state = np.asarray(obs, dtype=np.float32)
         info["is_success"] = False
-        return {"environment_state": self._state}, info
+        return self._observation(), info
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float32).reshape(-1), -1.0, 1.0)
@@ -46,7 +52,10 @@ class LunarLanderEnv(gym.Wrapper):
         at_rest = terminated and not self.env.unwrapped.lander.awake
         legs_down = obs[6] > 0 and obs[7] > 0
         info["is_success"] = bool(at_rest and legs_down and abs(obs[0]) <= PAD_HALF_WIDTH)
-        return {"environment_state": self._state}, float(reward), terminated, truncated, info
+        return self._observation(), float(reward), terminated, truncated, info
+
+    def _observation(self) -> dict[str, np.ndarray]:
+        return {"agent_pos": self._state[:6].copy(), "environment_state": self._state[6:].copy()}
 
     def expert_action(self) -> np.ndarray:
         """Gymnasium's own heuristic controller on the current state."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -27,7 +28,8 @@ IMAGE_BACKBONES = ("cnn", "resnet18")
 @dataclass
 class IUPEConfig(PreTrainedConfig):
     """IUPE = BCO(α) + sampling + exploration + self-attention. All three off is BCO(α);
-    ``supervised=true`` trains the policy on the dataset's true actions (the BC baseline)."""
+    ``supervised=true`` trains the policy (the BC baseline) and the IDM on the dataset's true actions: no env, no
+    pre-demonstrations, and a checkpoint ``lerobot-iupe-relabel`` takes."""
 
     # Random pre-demonstrations (with actions) that train the inverse dynamics model first.
     pre_demos_repo_id: str | None = None
@@ -46,6 +48,11 @@ class IUPEConfig(PreTrainedConfig):
     action_low: list[float] | None = None
     action_high: list[float] | None = None
     action_names: list[str] | None = None
+    # The IDM sees frames t-k … t+1+k to label a_t (k = idm_context; 0 = the pair (s_t, s_{t+1}) of the paper).
+    # Edges repeat an episode's first or last frame. k > 0 needs --policy.supervised=true (labelled windows).
+    idm_context: int = 0
+    # Frames per second of the data the model was trained on (filled from the dataset; checked when relabelling).
+    fps: int | None = None
     # Continuous actions: the sampling rule's action classes are K cells of a k-means partition of the
     # pre-demonstrations' actions (benchmarks/findings.md measures K).
     action_cells: int = 16
@@ -97,6 +104,13 @@ class IUPEConfig(PreTrainedConfig):
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
         if self.eval_mode not in EVAL_MODES:
             raise ValueError(f"--policy.eval_mode must be one of {list(EVAL_MODES)}, got {self.eval_mode!r}")
+        if self.idm_context < 0:
+            raise ValueError(f"--policy.idm_context must be 0 or more frames, got {self.idm_context}")
+        if self.idm_context > 0 and not self.supervised:
+            raise ValueError(
+                f"--policy.idm_context={self.idm_context} needs --policy.supervised=true: the IUPE cycle's "
+                "pre-demonstrations and rollouts are single transitions (s_t, a_t, s_{t+1})"
+            )
         if self.action_cells < 1:
             raise ValueError(f"--policy.action_cells must be at least 1, got {self.action_cells}")
         if (self.action_low is None) != (self.action_high is None) or (
@@ -140,6 +154,11 @@ class IUPEConfig(PreTrainedConfig):
         return self.action_low is not None
 
     @property
+    def idm_window(self) -> list[int]:
+        """Frame offsets the IDM reads around t: -k … k+1."""
+        return list(range(-self.idm_context, self.idm_context + 2))
+
+    @property
     def action_dim(self) -> int:
         return len(self.action_low) if self.is_continuous else 1
 
@@ -181,9 +200,16 @@ class IUPEConfig(PreTrainedConfig):
 
     def resolve_dataset(self, dataset_meta) -> None:
         """Fill what the training run tells (the rollout env: ``--policy.env_settings``, else lerobot-train's
-        ``--env.*``, else the expert dataset's ``meta/iupe.json``; the action space from that env) and refuse what
-        it cannot train. ``dataset_meta`` is None when a checkpoint is loaded for evaluation: its config holds all
-        of it."""
+        ``--env.*``, else the expert dataset's ``meta/iupe.json``; the action space from that env, or, supervised
+        and without an env, from the dataset's own ``action`` feature) and refuse what it cannot train.
+        ``dataset_meta`` is None when a checkpoint is loaded for evaluation: its config holds all of it."""
+        if dataset_meta is not None:
+            self.fps = self.fps or int(dataset_meta.fps)
+            if self.supervised and ACTION not in dataset_meta.features:
+                raise ValueError(
+                    f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
+                    "(collect it with --keep_actions=true)"
+                )
         if dataset_meta is not None and self.env_settings is None:
             env_cfg = env_config_from_command_line()
             if env_cfg is not None:
@@ -191,25 +217,44 @@ class IUPEConfig(PreTrainedConfig):
             else:
                 self.env_settings = read_iupe_meta(Path(dataset_meta.root)).get("env")
         if self.n_actions == 0 and not self.is_continuous:
-            if self.env_settings is None:
+            if self.env_settings is None and dataset_meta is not None and self.supervised:
+                self.action_space_from_dataset(dataset_meta)
+            elif self.env_settings is None:
                 raise ValueError(
                     "cannot tell the action space: no --env.type, no --policy.env_settings and the expert dataset "
                     "has no meta/iupe.json; pass --env.type=<the env of the demonstrations>"
                 )
-            env_cfg = env_config_from_settings(self.env_settings)
-            if isinstance(env_cfg, IUPEEnvConfig) and env_cfg.n_actions:
-                self.n_actions = env_cfg.n_actions
             else:
-                space = action_space_of(env_cfg)
-                self.action_low = [float(x) for x in space.low]
-                self.action_high = [float(x) for x in space.high]
-                self.action_names = action_names(env_cfg)
+                env_cfg = env_config_from_settings(self.env_settings)
+                if isinstance(env_cfg, IUPEEnvConfig) and env_cfg.n_actions:
+                    self.n_actions = env_cfg.n_actions
+                else:
+                    space = action_space_of(env_cfg)
+                    self.action_low = [float(x) for x in space.low]
+                    self.action_high = [float(x) for x in space.high]
+                    self.action_names = action_names(env_cfg)
         self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
         # A Gaussian IDM needs more passes than a categorical one: with 2 epochs a cycle LunarLander's held-out R²
         # went 0.07 → 0.29 → 0.60 over three cycles, with 10 epochs 0.78 in the first (40 random episodes).
         self.idm_epochs = self.idm_epochs or (5 if self.is_image else 10 if self.is_continuous else 2)
-        if dataset_meta is not None and self.supervised and ACTION not in dataset_meta.features:
-            raise ValueError(
-                f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
-                "(collect it with --keep_actions=true)"
-            )
+
+    def action_space_from_dataset(self, dataset_meta) -> None:
+        """The action space of a labelled dataset without an env: integer actions are ids 0 … max (LeRobot's
+        stats), float actions a box spanning the data (a constant dimension gets ±0.5 around its value)."""
+        feature = dataset_meta.features[ACTION]
+        stats = (dataset_meta.stats or {}).get(ACTION)
+        if stats is None:
+            raise ValueError(f"the dataset {dataset_meta.root} has no stats for '{ACTION}' (meta/stats.json)")
+        low = np.asarray(stats["min"], dtype=np.float64).reshape(-1)
+        high = np.asarray(stats["max"], dtype=np.float64).reshape(-1)
+        if not feature["dtype"].startswith("float"):
+            self.n_actions = int(high.max()) + 1
+            return
+        flat = high - low < 1e-6
+        self.action_low = [float(x) for x in np.where(flat, low - 0.5, low)]
+        self.action_high = [float(x) for x in np.where(flat, high + 0.5, high)]
+        names = feature.get("names")
+        if isinstance(names, dict):  # LeRobot also writes {"motors": [...]}
+            names = next(iter(names.values()), None)
+        dim = len(self.action_low)
+        self.action_names = [str(n) for n in names] if names and len(names) == dim else [f"a{i}" for i in range(dim)]

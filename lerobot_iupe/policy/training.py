@@ -163,9 +163,7 @@ class IUPETrainer:
     def start(self) -> None:
         cfg = self.config
         pre_dataset = self.check_inputs()
-        threads = cfg.torch_threads or (0 if cfg.is_image else 1)
-        if threads:
-            torch.set_num_threads(threads)
+        self.set_threads()
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
         pre = load_transitions(pre_dataset, cfg.observation_keys)
         if cfg.is_continuous:  # fitted again identically on resume (own seed)
@@ -193,6 +191,11 @@ class IUPETrainer:
         self.train_idm(pre)
         state.idm_s += time.perf_counter() - start
 
+    def set_threads(self) -> None:
+        threads = self.config.torch_threads or (0 if self.config.is_image else 1)
+        if threads:
+            torch.set_num_threads(threads)
+
     def restore(self, saved: dict) -> None:
         """Go on where the saved run stopped: the loaded weights are its selected model; the current model becomes
         its latest one (LeRobot's restored optimizer state belongs to those)."""
@@ -203,6 +206,8 @@ class IUPETrainer:
 
     def expert_frames(self) -> ExpertFrames:
         if self._expert is None:
+            if self.config.supervised:  # the IUPE cycle sets them in start()
+                self.set_threads()
             meta = self.dataset_meta
             dataset = LeRobotDataset(meta.repo_id, root=meta.root, video_backend="pyav")
             self._expert = ExpertFrames(dataset, self.config.observation_keys, self.config.supervised, self.device)

@@ -1,0 +1,156 @@
+"""Do IDM labels train LeRobot's own policies? ACT trained with `lerobot-train` on (a) an expert dataset with its
+true actions and (b) the same dataset stripped of its actions and relabelled by an IDM trained on 20% of its
+episodes (`--policy.supervised=true`), both evaluated by LeRobot's evaluation loop; 3 seeds per arm.
+
+    python scripts/measure_downstream.py [--envs lunarlander so101_pickplace] [--seeds 0 1 2]
+
+Writes the rows (env, policy, labels, seed, success_rate, …) into benchmarks/relabel.json under "downstream" and
+renders benchmarks/relabel.md. Evaluation is `eval_policy_all`, what `lerobot-eval` runs, without its video
+rendering (SO-101 cannot render without OpenGL on a CPU machine), on seeds 500000… never used by the data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from lerobot.datasets import LeRobotDataset
+from lerobot.datasets.dataset_tools import delete_episodes, remove_feature
+
+from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
+from lerobot_iupe.data.readers import action_array, column_array
+from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.policy.algorithm import r_squared
+
+BIN = Path(sys.executable).parent
+sys.path.insert(0, str(Path(__file__).parent))
+from relabel_report import render, update  # noqa: E402
+
+CHECKPOINT = "checkpoints/last/pretrained_model"
+ENVS = {  # env type -> (expert episodes, IDM steps, ACT steps)
+    "lunarlander": (50, 2000, 1500),
+    "so101_pickplace": (50, 2000, 1500),
+}
+# A CPU-sized ACT (LeRobot's defaults are for 480-px cameras): 10-step chunks, 128-wide transformer.
+ACT_FLAGS = [
+    "--policy.type=act", "--policy.chunk_size=10", "--policy.n_action_steps=10", "--policy.dim_model=128",
+    "--policy.n_heads=4", "--policy.dim_feedforward=512", "--policy.n_encoder_layers=2",
+    "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=2", "--policy.optimizer_lr=5e-4",
+    "--policy.push_to_hub=false", "--batch_size=64",
+]  # fmt: skip
+COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]
+
+
+def run(*args: str) -> None:
+    print("$", " ".join(args), flush=True)
+    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True)
+    if result.returncode:
+        print(result.stdout[-3000:], result.stderr[-3000:])
+        raise SystemExit(f"{args[0]} failed ({result.returncode})")
+
+
+def train(dataset: Path, out: Path, steps: int, seed: int, flags: list[str]) -> Path:
+    if not (out / CHECKPOINT).exists():
+        shutil.rmtree(out, ignore_errors=True)
+        run(
+            "lerobot-train", *flags, *COMMON, f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
+            f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}", f"--seed={seed}",
+        )  # fmt: skip
+    return out / CHECKPOINT
+
+
+def lunar_effect(actions: np.ndarray) -> np.ndarray:
+    """What LunarLanderContinuous does with an action: main-engine power (0 unless a0 > 0, then 0.5–1) and signed
+    side-engine power (0 unless |a1| > 0.5, then 0.5–1), as gymnasium's step computes them."""
+    main = np.where(actions[:, 0] > 0, (np.clip(actions[:, 0], 0, 1) + 1) / 2, 0.0)
+    side = np.where(np.abs(actions[:, 1]) > 0.5, np.sign(actions[:, 1]) * np.clip(np.abs(actions[:, 1]), 0.5, 1), 0)
+    return np.stack([main, side], axis=1)
+
+
+def label_quality(env: str, truth: Path, relabelled: Path) -> dict:
+    def inner_actions(root: Path) -> np.ndarray:
+        dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
+        episodes = column_array(dataset.hf_dataset, "episode_index")
+        return action_array(dataset)[np.append(episodes[:-1] == episodes[1:], False)]
+
+    true, labels = inner_actions(truth), inner_actions(relabelled)
+    quality = {
+        "frames": int(len(true)),
+        "r2": r_squared(labels, true),
+        "r2_per_dim": [r_squared(labels[:, i], true[:, i]) for i in range(true.shape[1])],
+    }
+    if env == "lunarlander":
+        quality["effect_r2"] = r_squared(lunar_effect(labels), lunar_effect(true))
+    return quality
+
+
+def measure(env: str, work: Path, seeds: list[int], episodes_eval: int) -> tuple[list[dict], dict]:
+    episodes, idm_steps, act_steps = ENVS[env]
+    truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
+    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm"
+    if not truth.exists():
+        run(
+            "lerobot-iupe-collect", f"--env.type={env}", "--agent=expert", f"--episodes={episodes}", "--seed=0",
+            "--keep_actions=true", f"--dataset.repo_id=local/{truth.name}", f"--dataset.root={truth}",
+        )  # fmt: skip
+    source = LeRobotDataset(f"local/{truth.name}", root=truth, video_backend="pyav")
+    n_labelled = max(1, episodes // 5)  # 20% of the episodes keep their actions
+    if not labelled.exists():
+        delete_episodes(source, list(range(n_labelled, episodes)), labelled, f"local/{labelled.name}")
+        (labelled / "meta" / "iupe.json").unlink(missing_ok=True)  # LeRobot's own files only
+    idm = train(labelled, work / f"{env}-idm-train", idm_steps, 0, ["--policy.type=iupe", "--policy.supervised=true"])
+    shutil.rmtree(stripped, ignore_errors=True)
+    shutil.rmtree(relabelled, ignore_errors=True)
+    remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
+    shutil.copytree(stripped, relabelled)
+    start = time.perf_counter()
+    run("lerobot-iupe-relabel", f"--policy.path={idm}", f"--dataset.repo_id=local/{relabelled.name}",
+        f"--dataset.root={relabelled}")  # fmt: skip
+    quality = {"env": env, "labelled_episodes": n_labelled, "episodes": episodes, "idm_steps": idm_steps,
+               "relabel_s": time.perf_counter() - start, **label_quality(env, truth, relabelled)}  # fmt: skip
+    print(json.dumps(quality), flush=True)
+    env_cfg = env_config_from_settings({"type": env})
+    rows = []
+    for labels, dataset in (("true", truth), ("idm", relabelled)):
+        for seed in seeds:
+            start = time.perf_counter()
+            checkpoint = train(dataset, work / f"{env}-act-{labels}-s{seed}", act_steps, seed, ACT_FLAGS)
+            train_s = time.perf_counter() - start
+            result = evaluate_checkpoint(checkpoint, env_cfg, episodes_eval)
+            rows.append(
+                {
+                    "env": env, "policy": "act", "labels": labels, "seed": seed,
+                    "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
+                    "episodes": episodes_eval, "act_steps": act_steps, "train_s": train_s,
+                }
+            )  # fmt: skip
+            print(json.dumps(rows[-1]), flush=True)
+    return rows, quality
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--envs", nargs="+", default=list(ENVS), choices=list(ENVS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--eval_episodes", type=int, default=50)
+    parser.add_argument("--work", default="outputs/measure-downstream")
+    parser.add_argument("--out", default="benchmarks")
+    args = parser.parse_args()
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
+    for env in args.envs:
+        rows, quality = measure(env, work, args.seeds, args.eval_episodes)
+        update(Path(args.out), "downstream", rows, command, key=("env", "labels", "seed"))
+        update(Path(args.out), "downstream_labels", [quality], command, key=("env",))
+    print(render(Path(args.out)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,132 @@
+"""benchmarks/relabel.json and its rendering benchmarks/relabel.md, shared by the relabelling measurements
+(measure_relabel.py, measure_downstream.py, measure_context.py): each writes its own sections and the command that
+produced them, and the page is rendered from the whole file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def load(out: Path) -> dict:
+    path = out / "relabel.json"
+    data = json.loads(path.read_text()) if path.exists() else {}
+    data.setdefault("commands", {})
+    return data
+
+
+def update(out: Path, section: str, rows: list[dict], command: str, key: tuple[str, ...] | None = None) -> None:
+    """Put ``rows`` into ``section``, replacing rows with the same ``key`` values (all of them when no key)."""
+    data = load(out)
+    if key is None:
+        data[section] = rows
+    else:
+        new = {tuple(r[k] for k in key) for r in rows}
+        data[section] = [r for r in data.get(section, []) if tuple(r[k] for k in key) not in new] + rows
+    data["commands"][section] = command
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "relabel.json").write_text(json.dumps(data, indent=2) + "\n")
+    (out / "relabel.md").write_text(render(out))
+
+
+def _f(x: float | None, digits: int = 3) -> str:
+    return "–" if x is None or (isinstance(x, float) and np.isnan(x)) else f"{x:.{digits}f}"
+
+
+def render(out: Path) -> str:
+    data = load(out)
+    commands = data["commands"]
+    lines = ["# lerobot-iupe-relabel: measured", "", "On a 2-core CPU, no GPU. Every section names its command.", ""]
+    if data.get("downstream"):
+        lines += [
+            "## LeRobot's ACT on true actions vs IDM labels",
+            "",
+            f"`{commands['downstream']}`",
+            "",
+            "Per env: an expert dataset with its true actions (a), and the same dataset stripped of `action` "
+            "(LeRobot's `remove_feature`) and relabelled by an IDM trained with `--policy.supervised=true` on 20% "
+            "of its episodes (LeRobot's `delete_episodes`, no package metadata) (b). ACT is trained on each with "
+            "`lerobot-train` under the same flags and seeds and evaluated by LeRobot's `eval_policy_all` on the same "
+            "seeds. Target: (b) ≥ 0.9 × (a).",
+            "",
+            "| env | labels | seeds | success rate per seed | mean ± std | return (mean) |",
+            "|---|---|---|---|---|---|",
+        ]
+        rows = data["downstream"]
+        summary = {}
+        for env in dict.fromkeys(r["env"] for r in rows):
+            for labels in ("true", "idm"):
+                mine = sorted((r for r in rows if r["env"] == env and r["labels"] == labels), key=lambda r: r["seed"])
+                if not mine:
+                    continue
+                rates = np.array([r["success_rate"] for r in mine])
+                summary[env, labels] = rates.mean()
+                lines.append(
+                    f"| {env} | {labels} | {len(mine)} | {', '.join(f'{x:.2f}' for x in rates)} | "
+                    f"{rates.mean():.3f} ± {rates.std():.3f} | {np.mean([r['avg_sum_reward'] for r in mine]):.1f} |"
+                )
+        lines += ["", "| env | (b) / (a) | target 0.9 |", "|---|---|---|"]
+        for env in dict.fromkeys(r["env"] for r in rows):
+            if (env, "true") in summary and (env, "idm") in summary:
+                a, b = summary[env, "true"], summary[env, "idm"]
+                ratio = b / a if a > 0 else float("nan")
+                met = "met" if a > 0 and ratio >= 0.9 else "missed" if a > 0 else "undefined: (a) is 0"
+                lines.append(f"| {env} | {_f(ratio)} | {met} |")
+        lines.append("")
+    if data.get("downstream_labels"):
+        lines += [
+            "### The labels of (b), against the stripped true actions (frames with a successor)",
+            "",
+            "| env | labelled episodes | frames | R² | R² per dimension | R² of the effect |",
+            "|---|---|---|---|---|---|",
+        ]
+        for q in data["downstream_labels"]:
+            per_dim = ", ".join(_f(x) for x in q["r2_per_dim"])
+            lines.append(
+                f"| {q['env']} | {q['labelled_episodes']} of {q['episodes']} | {q['frames']} | {_f(q['r2'])} | "
+                f"{per_dim} | {_f(q.get('effect_r2'))} |"
+            )
+        lines.append("")
+    if data.get("context"):
+        lines += [
+            "## IDM accuracy against the context k (frames t−k … t+1+k)",
+            "",
+            f"`{commands['context']}`",
+            "",
+            "| env | k | IDM training data | held-out frames | agreement (discrete) / R² (continuous) |",
+            "|---|---|---|---|---|",
+        ]
+        for r in data["context"]:
+            lines.append(f"| {r['env']} | {r['k']} | {r['trained_on']} | {r['frames']} | {_f(r['score'], 4)} |")
+        lines.append("")
+    if data.get("accuracy"):
+        lines += [
+            "## Label accuracy of IUPE checkpoints (expert data on unseen seeds, actions stripped, relabelled)",
+            "",
+            f"`{commands.get('accuracy', '')}`",
+            "",
+            "| env | episodes | frames compared | agreement |",
+            "|---|---|---|---|",
+            *[
+                f"| {a['env']} | {a['episodes']} | {a['frames_compared']} | {a['agreement']:.4f} |"
+                for a in data["accuracy"]
+            ],
+            "",
+        ]
+    if data.get("throughput"):
+        lines += [
+            "## Throughput",
+            "",
+            f"`{commands.get('throughput', '')}`",
+            "",
+            "| dataset | processes | relabel frames/s | plain decode frames/s | ratio |",
+            "|---|---|---|---|---|",
+        ]
+        for r in data["throughput"]:
+            decode = f"{r['decode_fps']:.0f}" if r.get("decode_fps") else "–"
+            ratio = f"{r['relabel_fps'] / r['decode_fps']:.2f}" if r.get("decode_fps") else "–"
+            lines.append(f"| {r['dataset']} | {r.get('processes', 1)} | {r['relabel_fps']:.0f} | {decode} | {ratio} |")
+        lines.append("")
+    return "\n".join(lines)

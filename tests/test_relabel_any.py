@@ -1,0 +1,256 @@
+"""The VPT workflow on datasets written by LeRobot's own writer (no package metadata, no env): an IDM trained with
+`lerobot-train --policy.supervised=true` on labelled episodes relabels state-only ones — continuous and discrete
+actions, several observation keys, several cameras, a non-causal window, two processes — and the result passes
+`lerobot-doctor` and trains LeRobot's ACT."""
+
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+from conftest import BIN, CHECKPOINT, run_cli
+from lerobot.datasets import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_iupe.data.readers import label_spans, window_indices
+from lerobot_iupe.policy.algorithm import r_squared
+
+CAMERAS = ("observation.images.top", "observation.images.side")
+ACTION_NAMES = ["force_x", "force_y"]
+
+
+def write_point_mass(
+    root, episodes: int, seed: int, with_actions: bool, discrete: bool = False, cameras: bool = False, fps: int = 10
+) -> np.ndarray:
+    """A point mass pushed towards a goal, written frame by frame with LeRobot's own writer: observation.state
+    (position, velocity), observation.environment_state (goal), optionally two 64×64 cameras (video) and the
+    action (float32 force, or int64 push left/none/right). Returns every frame's true action."""
+    rng = np.random.default_rng(seed)
+    features = {
+        OBS_STATE: {"dtype": "float32", "shape": (4,), "names": ["x", "y", "vx", "vy"]},
+        OBS_ENV_STATE: {"dtype": "float32", "shape": (2,), "names": ["goal_x", "goal_y"]},
+    }
+    if cameras:
+        for key in CAMERAS:
+            features[key] = {"dtype": "video", "shape": (64, 64, 3), "names": ["height", "width", "channels"]}
+    if with_actions:
+        features[ACTION] = (
+            {"dtype": "int64", "shape": (1,), "names": ["push"]}
+            if discrete
+            else {"dtype": "float32", "shape": (2,), "names": ACTION_NAMES}
+        )
+    dataset = LeRobotDataset.create(f"local/{root.name}", fps, features, root=root, use_videos=cameras)
+    actions = []
+    for _ in range(episodes):
+        position, velocity = rng.uniform(-1, 1, 2), np.zeros(2)
+        goal = rng.uniform(-1, 1, 2)
+        for _ in range(int(rng.integers(20, 30))):
+            if discrete:
+                action = int(np.clip(np.sign(goal[0] - position[0]) + 1 + rng.integers(-1, 2), 0, 2))
+                force = np.array([action - 1.0, 0.0])
+            else:
+                force = np.clip(goal - position - velocity + rng.normal(0, 0.3, 2), -1, 1)
+                action = force.astype(np.float32)
+            frame = {
+                OBS_STATE: np.r_[position, velocity].astype(np.float32),
+                OBS_ENV_STATE: goal.astype(np.float32),
+                "task": "reach the goal",
+            }
+            if cameras:
+                pixel = np.clip(((position + 2) / 4 * 64).astype(int), 0, 63)
+                for i, key in enumerate(CAMERAS):
+                    image = np.zeros((64, 64, 3), dtype=np.uint8)
+                    image[pixel[i], pixel[1 - i], :] = 255
+                    frame[key] = image
+            if with_actions:
+                frame[ACTION] = np.array([action], dtype=np.int64) if discrete else action
+            dataset.add_frame(frame)
+            actions.append(action)
+            velocity = 0.8 * velocity + 0.2 * force
+            position = position + 0.1 * velocity
+        dataset.save_episode()
+    dataset.finalize()
+    return np.asarray(actions)
+
+
+def train_idm(dataset, out, *flags: str, steps: int = 300):
+    run_cli(
+        "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{dataset.name}",
+        f"--dataset.root={dataset}", "--dataset.video_backend=pyav", f"--output_dir={out}", "--num_workers=0",
+        "--policy.device=cpu", "--wandb.enable=false", f"--steps={steps}", f"--save_freq={steps}", "--batch_size=64",
+        *flags,
+    )  # fmt: skip
+    return out / CHECKPOINT
+
+
+def relabel(checkpoint, dataset, *flags: str, check: bool = True, launcher: tuple[str, ...] = ()):
+    args = [
+        f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
+        "--video_backend=pyav", *flags,
+    ]  # fmt: skip
+    if launcher:
+        return run_cli(*launcher, str(BIN / "lerobot-iupe-relabel"), *args, check=check)
+    return run_cli("lerobot-iupe-relabel", *args, check=check)
+
+
+def inner(actions: np.ndarray, dataset) -> np.ndarray:
+    """The frames with a successor (the last frame of an episode repeats the label before it)."""
+    episodes = np.asarray(dataset.hf_dataset.with_format("numpy")["episode_index"])
+    return actions[np.append(episodes[:-1] == episodes[1:], False)]
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("any")
+
+
+@pytest.fixture(scope="module")
+def continuous_idm(work):
+    """An IDM with a window of k = 1, trained on 12 labelled episodes of a LeRobot-written dataset."""
+    labelled = work / "labelled"
+    write_point_mass(labelled, episodes=12, seed=0, with_actions=True)
+    return train_idm(labelled, work / "idm", "--policy.idm_context=1")
+
+
+def test_window_indices_clamp_into_the_episode():
+    t = np.array([10, 11, 14])
+    index = window_indices(t, [-1, 0, 1, 2], first=np.full(3, 10), last=np.full(3, 14))
+    np.testing.assert_array_equal(index, [[10, 10, 11, 12], [10, 11, 12, 13], [13, 14, 14, 14]])
+
+
+def test_label_spans_cover_every_frame_with_a_successor_once_and_load_the_window():
+    bounds = [(0, 7), (7, 8), (8, 20)]  # a one-frame episode has nothing to label
+    spans = label_spans(bounds, batch_size=5, offsets=[-1, 0, 1, 2])
+    labelled = [t for s in spans for t in range(s.start, s.stop)]
+    assert labelled == [*range(0, 6), *range(8, 19)]
+    for s in spans:
+        first, end = bounds[s.episode]
+        assert s.lo == max(first, s.start - 1) and s.hi == min(end - 1, s.stop - 1 + 2)
+        assert s.stop - s.start <= 5
+    assert [s.episode for s in label_spans(bounds, 5, [0, 1], episodes=[2])] == [2, 2, 2]
+
+
+def test_a_supervised_idm_relabels_lerobot_written_continuous_data(continuous_idm, work):
+    config = json.loads((continuous_idm / "config.json").read_text())
+    assert config["env_settings"] is None and config["fps"] == 10 and config["idm_context"] == 1
+    assert config["action_names"] == ACTION_NAMES and config["observation_keys"] == [OBS_STATE, OBS_ENV_STATE]
+    held_out = work / "held-out"
+    true = write_point_mass(held_out, episodes=6, seed=1, with_actions=False)
+    assert not (held_out / "meta" / "iupe.json").exists()  # LeRobot's files only
+    result = relabel(continuous_idm, held_out)
+    assert "R²" not in result.stdout  # nothing to compare with
+    dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out)
+    feature = dataset.meta.features[ACTION]
+    assert feature["dtype"] == "float32" and tuple(feature["shape"]) == (2,) and feature["names"] == ACTION_NAMES
+    labels = np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION])
+    assert r_squared(inner(labels, dataset), inner(true, dataset)) > 0.9
+    stats = dataset.meta.stats[ACTION]
+    assert set(stats) == set(dataset.meta.stats[OBS_STATE])  # the same statistics LeRobot computes for a feature
+    np.testing.assert_allclose(stats["mean"], labels.mean(axis=0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(stats["max"], labels.max(axis=0), rtol=1e-6)
+
+    after = doctor(held_out)
+    assert after["overall_severity"] != "FAIL", json.dumps(after["checks"])[-3000:]
+    assert not [c["name"] for c in after["checks"] if c["severity"] == "FAIL"]
+
+
+def doctor(root) -> dict:
+    """The third-party checker's verdict on a dataset (lerobot-doctor from PyPI)."""
+    result = run_cli("lerobot-doctor", "check", str(root), "--json", check=False)
+    return json.loads(result.stdout[result.stdout.index("{") :])
+
+
+def test_lerobot_doctor_fails_the_state_only_dataset_it_passes_once_relabelled(work):
+    state_only = work / "state-only"
+    write_point_mass(state_only, episodes=2, seed=12, with_actions=False)
+    assert doctor(state_only)["overall_severity"] == "FAIL"  # "no action features": the checker can fail
+
+
+def test_lerobot_act_trains_on_the_relabelled_dataset(continuous_idm, work):
+    dataset = work / "for-act"
+    write_point_mass(dataset, episodes=3, seed=2, with_actions=False)
+    relabel(continuous_idm, dataset)
+    out = work / "act"
+    run_cli(
+        "lerobot-train", "--policy.type=act", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
+        f"--output_dir={out}", "--steps=3", "--batch_size=4", "--num_workers=0", "--policy.device=cpu",
+        "--policy.push_to_hub=false", "--wandb.enable=false", "--policy.chunk_size=5", "--policy.n_action_steps=5",
+        "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64", "--save_freq=3",
+    )  # fmt: skip
+    assert (out / CHECKPOINT / "model.safetensors").exists()
+
+
+def test_two_processes_write_the_same_bytes_as_one(continuous_idm, work):
+    one, two = work / "one-process", work / "two-processes"
+    write_point_mass(one, episodes=5, seed=3, with_actions=False)
+    shutil.copytree(one, two)
+    relabel(continuous_idm, one, "--batch_size=7", "--mode=sample", "--seed=4")
+    result = relabel(
+        continuous_idm, two, "--batch_size=7", "--mode=sample", "--seed=4",
+        launcher=("torchrun", "--nproc_per_node=2", "--standalone"),
+    )  # fmt: skip
+    assert "on 2 processes" in result.stdout
+    files = sorted(p.relative_to(one) for p in one.rglob("*") if p.is_file() and p.name != "iupe.json")
+    assert files == sorted(p.relative_to(two) for p in two.rglob("*") if p.is_file() and p.name != "iupe.json")
+    for name in files:
+        assert (one / name).read_bytes() == (two / name).read_bytes(), name
+
+
+def test_a_discrete_supervised_idm_from_lerobot_written_data(work):
+    labelled, held_out = work / "discrete-labelled", work / "discrete-held-out"
+    write_point_mass(labelled, episodes=12, seed=5, with_actions=True, discrete=True)
+    checkpoint = train_idm(labelled, work / "discrete-idm", steps=200)
+    assert json.loads((checkpoint / "config.json").read_text())["n_actions"] == 3
+    true = write_point_mass(held_out, episodes=6, seed=6, with_actions=False, discrete=True)
+    relabel(checkpoint, held_out)
+    dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out)
+    assert dataset.meta.features[ACTION]["dtype"] == "int64"
+    labels = np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]).reshape(-1)
+    assert (inner(labels, dataset) == inner(true, dataset)).mean() >= 0.95
+
+
+def test_two_cameras_are_read_and_a_mismatch_is_named(work):
+    labelled, held_out = work / "cameras-labelled", work / "cameras-held-out"
+    write_point_mass(labelled, episodes=3, seed=7, with_actions=True, cameras=True)
+    checkpoint = train_idm(labelled, work / "cameras-idm", steps=4)
+    assert json.loads((checkpoint / "config.json").read_text())["observation_keys"] == list(CAMERAS)
+    write_point_mass(held_out, episodes=2, seed=8, with_actions=False, cameras=True)
+    relabel(checkpoint, held_out)
+    dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out, video_backend="pyav")
+    assert dataset.meta.features[ACTION]["dtype"] == "float32" and len(dataset.hf_dataset) == dataset.meta.total_frames
+
+    no_cameras = work / "no-cameras"
+    write_point_mass(no_cameras, episodes=1, seed=9, with_actions=False)
+    files = sorted(p.relative_to(no_cameras) for p in no_cameras.rglob("*"))
+    result = relabel(checkpoint, no_cameras, check=False)
+    assert result.returncode == 2 and "observation.images.top" in result.stderr and "--policy.path" in result.stderr
+    assert sorted(p.relative_to(no_cameras) for p in no_cameras.rglob("*")) == files
+
+
+def test_incompatible_fps_and_action_names_are_refused_naming_both_sides(continuous_idm, work):
+    fast = work / "fast"
+    write_point_mass(fast, episodes=1, seed=10, with_actions=False, fps=20)
+    result = relabel(continuous_idm, fast, check=False)
+    assert result.returncode == 2 and "fps" in result.stderr and "20" in result.stderr and "10" in result.stderr
+
+    renamed = work / "renamed"
+    write_point_mass(renamed, episodes=1, seed=11, with_actions=True)
+    info_path = renamed / "meta" / "info.json"
+    info = json.loads(info_path.read_text())
+    info["features"][ACTION]["names"] = ["joint_1", "joint_2"]
+    info_path.write_text(json.dumps(info, indent=4))
+    before = {p: p.read_bytes() for p in renamed.rglob("*") if p.is_file()}
+    result = relabel(continuous_idm, renamed, "--overwrite=true", check=False)
+    assert result.returncode == 2 and "joint_1" in result.stderr and "force_x" in result.stderr
+    assert before == {p: p.read_bytes() for p in renamed.rglob("*") if p.is_file()}
+
+
+def test_a_window_needs_supervised_training():
+    from lerobot_iupe.policy import IUPEConfig
+
+    with pytest.raises(ValueError, match="--policy.supervised=true"):
+        IUPEConfig(idm_context=2)
+    with pytest.raises(ValueError, match="--policy.idm_context"):
+        IUPEConfig(idm_context=-1, supervised=True)
+    assert os.environ.get("WORLD_SIZE") is None  # the suite itself runs as one process
