@@ -46,13 +46,17 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
         + (" (stored as video)" if info.features[k]["dtype"] == "video" else "")
         for k in obs_keys
     )
-    env = meta.get("env", {"type": info.robot_type})
+    env = meta.get("env") or {"type": info.robot_type or "unknown"}
     seeds = meta.get("seeds", [0])
-    card_data = DatasetCardData(license=license, task_categories=["robotics"], tags=CARD_TAGS + [env["type"]])
-    command = (
-        f"lerobot-iupe-collect --env.type={env['type']} --agent={meta.get('agent')} "
-        f"--episodes={meta.get('episodes')} --seed={seeds[0]} --dataset.repo_id={repo_id}"
-    )
+    tags = CARD_TAGS + ([env["type"]] if env["type"] != "unknown" else [])
+    card_data = DatasetCardData(license=license, task_categories=["robotics"], tags=tags)
+    if "agent" in meta:
+        command = (
+            f"lerobot-iupe-collect --env.type={env['type']} --agent={meta.get('agent')} "
+            f"--episodes={meta.get('episodes')} --seed={seeds[0]} --dataset.repo_id={repo_id}"
+        )
+    else:  # a dataset recorded elsewhere (e.g. by LeRobot itself) and only relabelled here
+        command = "# recorded outside lerobot_iupe; its actions were labelled with lerobot-iupe-relabel"
     if env["type"] == "maze":
         command += f" --env.size={env['size']} --env.image_size={env['image_size']}"
     return DatasetCard.from_template(
@@ -80,6 +84,7 @@ def build_card(root: str | Path, repo_id: str, license: str = "apache-2.0") -> D
         std_return=f"{meta.get('std_return', float('nan')):.2f}",
         success_rate=f"{meta.get('success_rate', float('nan')):.0%}",
         collect_command=command,
+        collected="agent" in meta,
     )
 
 

@@ -95,11 +95,15 @@ def render(out: Path) -> str:
             "",
             f"`{commands['context']}`",
             "",
-            "| env | k | IDM training data | held-out frames | agreement (discrete) / R² (continuous) |",
-            "|---|---|---|---|---|",
+            "| env | k | IDM training data | held-out frames | agreement (discrete) / R² (continuous) "
+            "| R² of the effect |",
+            "|---|---|---|---|---|---|",
         ]
         for r in data["context"]:
-            lines.append(f"| {r['env']} | {r['k']} | {r['trained_on']} | {r['frames']} | {_f(r['score'], 4)} |")
+            lines.append(
+                f"| {r['env']} | {r['k']} | {r['trained_on']} | {r['frames']} | {_f(r['score'], 4)} | "
+                f"{_f(r.get('effect_r2'), 4)} |"
+            )
         lines.append("")
     if data.get("accuracy"):
         lines += [

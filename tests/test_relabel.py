@@ -119,7 +119,7 @@ def test_overwrite_replaces_existing_actions(cartpole_run, data_dir, tmp_path):
 @pytest.mark.parametrize(
     ("case", "message"),
     [
-        ("image_dataset", "the checkpoint reads 'observation.state'"),
+        ("image_dataset", "the checkpoint --policy.path reads 'observation.state'"),
         ("other_state_size", "has shape (6,) in the dataset"),
         ("not_a_checkpoint", "holds no config.json"),
         ("bad_mode", "--mode=greedy"),

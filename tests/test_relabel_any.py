@@ -14,6 +14,7 @@ from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_iupe.data.readers import label_spans, window_indices
+from lerobot_iupe.hub import build_card
 from lerobot_iupe.policy.algorithm import r_squared
 
 CAMERAS = ("observation.images.top", "observation.images.side")
@@ -149,6 +150,9 @@ def test_a_supervised_idm_relabels_lerobot_written_continuous_data(continuous_id
     assert set(stats) == set(dataset.meta.stats[OBS_STATE])  # the same statistics LeRobot computes for a feature
     np.testing.assert_allclose(stats["mean"], labels.mean(axis=0), rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(stats["max"], labels.max(axis=0), rtol=1e-6)
+
+    card = str(build_card(held_out, "me/held-out"))
+    assert str(continuous_idm) in card and "float32 (2,): force_x, force_y" in card
 
     after = doctor(held_out)
     assert after["overall_severity"] != "FAIL", json.dumps(after["checks"])[-3000:]

@@ -66,14 +66,6 @@ def stored_frames(dataset: LeRobotDataset, key: str) -> np.ndarray:
     return column_array(dataset.hf_dataset, key).astype(np.float32)
 
 
-def state_chunks(dataset: LeRobotDataset, key: str, batch_size: int) -> Iterator[Chunk]:
-    """Chunks of a feature kept in the parquet files (states or ``image`` features)."""
-    states = torch.from_numpy(stored_frames(dataset, key))
-    for first, end in episode_bounds(dataset.meta):
-        for start, stop in chunk_spans(first, end - 1, batch_size):
-            yield Chunk(start, states[start : stop + 1], stop == end - 1)
-
-
 def video_chunks(meta: LeRobotDatasetMetadata, key: str, batch_size: int, backend: str) -> Iterator[Chunk]:
     """Decode each episode's frames in chunks of ``batch_size + 1`` frames (uint8, C×H×W), one seek per chunk."""
     tolerance = 1 / meta.fps - 1e-4
