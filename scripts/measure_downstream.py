@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import torch
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import delete_episodes, remove_feature
 
@@ -49,7 +52,9 @@ COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wand
 
 def run(*args: str) -> None:
     print("$", " ".join(args), flush=True)
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True)
+    # One intra-op thread per run: two runs share the two cores instead of four threads fighting over them.
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, env=env)
     if result.returncode:
         print(result.stdout[-3000:], result.stderr[-3000:])
         raise SystemExit(f"{args[0]} failed ({result.returncode})")
@@ -90,7 +95,7 @@ def label_quality(env: str, truth: Path, relabelled: Path) -> dict:
     return quality
 
 
-def measure(env: str, work: Path, seeds: list[int], episodes_eval: int) -> tuple[list[dict], dict]:
+def measure(env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: int) -> tuple[list[dict], dict]:
     episodes, idm_steps, act_steps = ENVS[env]
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
     stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm"
@@ -116,21 +121,28 @@ def measure(env: str, work: Path, seeds: list[int], episodes_eval: int) -> tuple
                "relabel_s": time.perf_counter() - start, **label_quality(env, truth, relabelled)}  # fmt: skip
     print(json.dumps(quality), flush=True)
     env_cfg = env_config_from_settings({"type": env})
+    arms = [(labels, dataset, seed) for labels, dataset in (("true", truth), ("idm", relabelled)) for seed in seeds]
+
+    def train_arm(arm) -> tuple[Path, float]:
+        labels, dataset, seed = arm
+        start = time.perf_counter()
+        checkpoint = train(dataset, work / f"{env}-act-{labels}-s{seed}", act_steps, seed, ACT_FLAGS)
+        return checkpoint, time.perf_counter() - start
+
+    with ThreadPoolExecutor(jobs) as pool:
+        trained = list(pool.map(train_arm, arms))
+    torch.set_num_threads(1)
     rows = []
-    for labels, dataset in (("true", truth), ("idm", relabelled)):
-        for seed in seeds:
-            start = time.perf_counter()
-            checkpoint = train(dataset, work / f"{env}-act-{labels}-s{seed}", act_steps, seed, ACT_FLAGS)
-            train_s = time.perf_counter() - start
-            result = evaluate_checkpoint(checkpoint, env_cfg, episodes_eval)
-            rows.append(
-                {
-                    "env": env, "policy": "act", "labels": labels, "seed": seed,
-                    "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
-                    "episodes": episodes_eval, "act_steps": act_steps, "train_s": train_s,
-                }
-            )  # fmt: skip
-            print(json.dumps(rows[-1]), flush=True)
+    for (labels, _, seed), (checkpoint, train_s) in zip(arms, trained, strict=True):
+        result = evaluate_checkpoint(checkpoint, env_cfg, episodes_eval)
+        rows.append(
+            {
+                "env": env, "policy": "act", "labels": labels, "seed": seed,
+                "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
+                "episodes": episodes_eval, "act_steps": act_steps, "train_s": train_s,
+            }
+        )  # fmt: skip
+        print(json.dumps(rows[-1]), flush=True)
     return rows, quality
 
 
@@ -139,6 +151,7 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", default=list(ENVS), choices=list(ENVS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--eval_episodes", type=int, default=50)
+    parser.add_argument("--jobs", type=int, default=2, help="ACT runs trained at a time (one thread each)")
     parser.add_argument("--work", default="outputs/measure-downstream")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -146,7 +159,7 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
     for env in args.envs:
-        rows, quality = measure(env, work, args.seeds, args.eval_episodes)
+        rows, quality = measure(env, work, args.seeds, args.eval_episodes, args.jobs)
         update(Path(args.out), "downstream", rows, command, key=("env", "labels", "seed"))
         update(Path(args.out), "downstream_labels", [quality], command, key=("env",))
     print(render(Path(args.out)))

@@ -125,7 +125,7 @@ def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpo
     assert not [k for k in load_file(bco / CHECKPOINT / "model.safetensors") if "gamma" in k]
 
 
-def test_supervised_bc_learns_the_true_actions(cartpole_random, data_dir, tmp_path):
+def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(cartpole_random, data_dir, tmp_path):
     labelled = data_dir / "cartpole-expert-labelled"
     run_cli(
         "lerobot-iupe-collect", "--env.type=cartpole", "--agent=expert", "--episodes=3", "--keep_actions=true",
@@ -143,6 +143,10 @@ def test_supervised_bc_learns_the_true_actions(cartpole_random, data_dir, tmp_pa
     actions = column_array(dataset.hf_dataset, "action").reshape(-1)
     agreement = (policy.pm_output(states).argmax(-1).numpy() == actions).mean()
     assert agreement >= 0.9
+    episodes = column_array(dataset.hf_dataset, "episode_index")
+    inner = np.flatnonzero(episodes[:-1] == episodes[1:])
+    idm_agreement = (policy.idm_output(states[inner], states[inner + 1]).argmax(-1).numpy() == actions[inner]).mean()
+    assert idm_agreement >= 0.9  # the IDM learned from the same true actions
 
 
 def test_supervised_without_actions_is_refused(cartpole_expert, cartpole_random, tmp_path):

@@ -140,7 +140,8 @@ class IUPEPolicy(PreTrainedPolicy):
             loss = pm_loss + idm_loss
             return loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
         state, next_state = expert.pairs(rows)
-        loss = self.pm_head.loss(self.pm_output(state), self.trainer.labels(state, next_state))
+        labels = self.trainer.labels(state, next_state)  # first: on the first step it starts (or restores) the cycle
+        loss = self.pm_head.loss(self.pm_output(state), labels)
         return loss, {"pm_loss": float(loss.detach()), **self.trainer.stats}
 
     def update(self) -> None:
