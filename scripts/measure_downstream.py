@@ -91,14 +91,22 @@ def label_quality(env: str, truth: Path, relabelled: Path) -> dict:
         "r2_per_dim": [r_squared(labels[:, i], true[:, i]) for i in range(true.shape[1])],
     }
     if env == "lunarlander":
-        quality["effect_r2"] = r_squared(lunar_effect(labels), lunar_effect(true))
+        effect_true, effect_labels = lunar_effect(true), lunar_effect(labels)
+        quality["effect_r2"] = r_squared(effect_labels, effect_true)
+        # whether each engine fires (and which side engine) is what the next state shows most plainly
+        quality["engine_agreement"] = [
+            float(((effect_labels[:, 0] > 0) == (effect_true[:, 0] > 0)).mean()),
+            float((np.sign(effect_labels[:, 1]) == np.sign(effect_true[:, 1])).mean()),
+        ]
     return quality
 
 
-def measure(env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: int) -> tuple[list[dict], dict]:
+def measure(
+    env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: int, k: int, arms: list[str]
+) -> tuple[list[dict], dict]:
     episodes, idm_steps, act_steps = ENVS[env]
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
-    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm"
+    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-k{k}"
     if not truth.exists():
         run(
             "lerobot-iupe-collect", f"--env.type={env}", "--agent=expert", f"--episodes={episodes}", "--seed=0",
@@ -109,7 +117,8 @@ def measure(env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: in
     if not labelled.exists():
         delete_episodes(source, list(range(n_labelled, episodes)), labelled, f"local/{labelled.name}")
         (labelled / "meta" / "iupe.json").unlink(missing_ok=True)  # LeRobot's own files only
-    idm = train(labelled, work / f"{env}-idm-train", idm_steps, 0, ["--policy.type=iupe", "--policy.supervised=true"])
+    idm_flags = ["--policy.type=iupe", "--policy.supervised=true", f"--policy.idm_context={k}"]
+    idm = train(labelled, work / f"{env}-idm-k{k}-train", idm_steps, 0, idm_flags)
     shutil.rmtree(stripped, ignore_errors=True)
     shutil.rmtree(relabelled, ignore_errors=True)
     remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
@@ -117,27 +126,31 @@ def measure(env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: in
     start = time.perf_counter()
     run("lerobot-iupe-relabel", f"--policy.path={idm}", f"--dataset.repo_id=local/{relabelled.name}",
         f"--dataset.root={relabelled}")  # fmt: skip
-    quality = {"env": env, "labelled_episodes": n_labelled, "episodes": episodes, "idm_steps": idm_steps,
-               "relabel_s": time.perf_counter() - start, **label_quality(env, truth, relabelled)}  # fmt: skip
+    quality = {"env": env, "idm_context": k, "labelled_episodes": n_labelled, "episodes": episodes,
+               "idm_steps": idm_steps, "relabel_s": time.perf_counter() - start,
+               **label_quality(env, truth, relabelled)}  # fmt: skip
     print(json.dumps(quality), flush=True)
     env_cfg = env_config_from_settings({"type": env})
-    arms = [(labels, dataset, seed) for labels, dataset in (("true", truth), ("idm", relabelled)) for seed in seeds]
+    datasets = {"true": truth, "idm": relabelled}
+    runs = [(labels, datasets[labels], seed) for labels in arms for seed in seeds]
 
-    def train_arm(arm) -> tuple[Path, float]:
-        labels, dataset, seed = arm
+    def train_arm(run) -> tuple[Path, float]:
+        labels, dataset, seed = run
         start = time.perf_counter()
-        checkpoint = train(dataset, work / f"{env}-act-{labels}-s{seed}", act_steps, seed, ACT_FLAGS)
+        name = f"{env}-act-true-s{seed}" if labels == "true" else f"{env}-act-idm-k{k}-s{seed}"
+        checkpoint = train(dataset, work / name, act_steps, seed, ACT_FLAGS)
         return checkpoint, time.perf_counter() - start
 
     with ThreadPoolExecutor(jobs) as pool:
-        trained = list(pool.map(train_arm, arms))
+        trained = list(pool.map(train_arm, runs))
     torch.set_num_threads(1)
     rows = []
-    for (labels, _, seed), (checkpoint, train_s) in zip(arms, trained, strict=True):
+    for (labels, _, seed), (checkpoint, train_s) in zip(runs, trained, strict=True):
         result = evaluate_checkpoint(checkpoint, env_cfg, episodes_eval)
         rows.append(
             {
-                "env": env, "policy": "act", "labels": labels, "seed": seed,
+                "env": env, "policy": "act", "labels": labels, "idm_context": k if labels == "idm" else None,
+                "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
                 "episodes": episodes_eval, "act_steps": act_steps, "train_s": train_s,
             }
@@ -152,6 +165,8 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--eval_episodes", type=int, default=50)
     parser.add_argument("--jobs", type=int, default=2, help="ACT runs trained at a time (one thread each)")
+    parser.add_argument("--idm_context", type=int, default=1, help="the IDM's window k (--policy.idm_context)")
+    parser.add_argument("--arms", nargs="+", default=["true", "idm"], choices=["true", "idm"])
     parser.add_argument("--work", default="outputs/measure-downstream")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -159,9 +174,9 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
     for env in args.envs:
-        rows, quality = measure(env, work, args.seeds, args.eval_episodes, args.jobs)
-        update(Path(args.out), "downstream", rows, command, key=("env", "labels", "seed"))
-        update(Path(args.out), "downstream_labels", [quality], command, key=("env",))
+        rows, quality = measure(env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms)
+        update(Path(args.out), "downstream", rows, command, key=("env", "labels", "idm_context", "seed"))
+        update(Path(args.out), "downstream_labels", [quality], command, key=("env", "idm_context"))
     print(render(Path(args.out)))
 
 

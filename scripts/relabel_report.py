@@ -25,10 +25,23 @@ def update(out: Path, section: str, rows: list[dict], command: str, key: tuple[s
     else:
         new = {tuple(r[k] for k in key) for r in rows}
         data[section] = [r for r in data.get(section, []) if tuple(r[k] for k in key) not in new] + rows
-    data["commands"][section] = command
+    commands = data["commands"].get(section, [])
+    commands = [commands] if isinstance(commands, str) else commands
+    data["commands"][section] = commands + [command] if command not in commands else commands
     out.mkdir(parents=True, exist_ok=True)
     (out / "relabel.json").write_text(json.dumps(data, indent=2) + "\n")
     (out / "relabel.md").write_text(render(out))
+
+
+def _commands(data: dict, section: str) -> str:
+    commands = data["commands"].get(section, [])
+    return ", ".join(f"`{c}`" for c in ([commands] if isinstance(commands, str) else commands))
+
+
+def _labels(row: dict) -> str:
+    if row["labels"] == "true":
+        return "true"
+    return "idm" if row.get("idm_context") is None else f"idm (k={row['idm_context']})"
 
 
 def _f(x: float | None, digits: int = 3) -> str:
@@ -37,13 +50,12 @@ def _f(x: float | None, digits: int = 3) -> str:
 
 def render(out: Path) -> str:
     data = load(out)
-    commands = data["commands"]
     lines = ["# lerobot-iupe-relabel: measured", "", "On a 2-core CPU, no GPU. Every section names its command.", ""]
     if data.get("downstream"):
         lines += [
             "## LeRobot's ACT on true actions vs IDM labels",
             "",
-            f"`{commands['downstream']}`",
+            _commands(data, "downstream"),
             "",
             "Per env: an expert dataset with its true actions (a), and the same dataset stripped of `action` "
             "(LeRobot's `remove_feature`) and relabelled by an IDM trained with `--policy.supervised=true` on 20% "
@@ -57,43 +69,45 @@ def render(out: Path) -> str:
         rows = data["downstream"]
         summary = {}
         for env in dict.fromkeys(r["env"] for r in rows):
-            for labels in ("true", "idm"):
-                mine = sorted((r for r in rows if r["env"] == env and r["labels"] == labels), key=lambda r: r["seed"])
-                if not mine:
-                    continue
+            for arm in dict.fromkeys(_labels(r) for r in rows if r["env"] == env):
+                mine = sorted((r for r in rows if r["env"] == env and _labels(r) == arm), key=lambda r: r["seed"])
                 rates = np.array([r["success_rate"] for r in mine])
-                summary[env, labels] = rates.mean()
+                summary[env, arm] = rates.mean()
                 lines.append(
-                    f"| {env} | {labels} | {len(mine)} | {', '.join(f'{x:.2f}' for x in rates)} | "
+                    f"| {env} | {arm} | {len(mine)} | {', '.join(f'{x:.2f}' for x in rates)} | "
                     f"{rates.mean():.3f} ± {rates.std():.3f} | {np.mean([r['avg_sum_reward'] for r in mine]):.1f} |"
                 )
-        lines += ["", "| env | (b) / (a) | target 0.9 |", "|---|---|---|"]
-        for env in dict.fromkeys(r["env"] for r in rows):
-            if (env, "true") in summary and (env, "idm") in summary:
-                a, b = summary[env, "true"], summary[env, "idm"]
-                ratio = b / a if a > 0 else float("nan")
-                met = "met" if a > 0 and ratio >= 0.9 else "missed" if a > 0 else "undefined: (a) is 0"
-                lines.append(f"| {env} | {_f(ratio)} | {met} |")
+        lines += ["", "| env | labels | (b) / (a) | target 0.9 |", "|---|---|---|---|"]
+        for (env, arm), b in summary.items():
+            if arm == "true" or (env, "true") not in summary:
+                continue
+            a = summary[env, "true"]
+            ratio = b / a if a > 0 else float("nan")
+            met = "met" if a > 0 and ratio >= 0.9 else "missed" if a > 0 else "undefined: (a) is 0"
+            lines.append(f"| {env} | {arm} | {_f(ratio)} | {met} |")
         lines.append("")
     if data.get("downstream_labels"):
         lines += [
             "### The labels of (b), against the stripped true actions (frames with a successor)",
             "",
-            "| env | labelled episodes | frames | R² | R² per dimension | R² of the effect |",
-            "|---|---|---|---|---|---|",
+            "| env | k | labelled episodes | frames | R² | R² per dimension | R² of the effect "
+            "| engines on/off agree |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for q in data["downstream_labels"]:
             per_dim = ", ".join(_f(x) for x in q["r2_per_dim"])
             lines.append(
-                f"| {q['env']} | {q['labelled_episodes']} of {q['episodes']} | {q['frames']} | {_f(q['r2'])} | "
-                f"{per_dim} | {_f(q.get('effect_r2'))} |"
+                f"| {q['env']} | {q.get('idm_context', 0)} "
+                f"| {q['labelled_episodes']} of {q['episodes']} | {q['frames']} | {_f(q['r2'])} | "
+                f"{per_dim} | {_f(q.get('effect_r2'))} | "
+                f"{', '.join(_f(x) for x in q['engine_agreement']) if 'engine_agreement' in q else '–'} |"
             )
         lines.append("")
     if data.get("context"):
         lines += [
             "## IDM accuracy against the context k (frames t−k … t+1+k)",
             "",
-            f"`{commands['context']}`",
+            _commands(data, "context"),
             "",
             "| env | k | IDM training data | held-out frames | agreement (discrete) / R² (continuous) "
             "| R² of the effect |",
@@ -109,7 +123,7 @@ def render(out: Path) -> str:
         lines += [
             "## Label accuracy of IUPE checkpoints (expert data on unseen seeds, actions stripped, relabelled)",
             "",
-            f"`{commands.get('accuracy', '')}`",
+            _commands(data, "accuracy"),
             "",
             "| env | episodes | frames compared | agreement |",
             "|---|---|---|---|",
@@ -123,7 +137,7 @@ def render(out: Path) -> str:
         lines += [
             "## Throughput",
             "",
-            f"`{commands.get('throughput', '')}`",
+            _commands(data, "throughput"),
             "",
             "| dataset | processes | relabel frames/s | plain decode frames/s | ratio |",
             "|---|---|---|---|---|",

@@ -205,7 +205,8 @@ def test_a_discrete_supervised_idm_from_lerobot_written_data(work):
     labelled, held_out = work / "discrete-labelled", work / "discrete-held-out"
     write_point_mass(labelled, episodes=12, seed=5, with_actions=True, discrete=True)
     checkpoint = train_idm(labelled, work / "discrete-idm", steps=200)
-    assert json.loads((checkpoint / "config.json").read_text())["n_actions"] == 3
+    config = json.loads((checkpoint / "config.json").read_text())
+    assert config["n_actions"] == 3 and config["idm_context"] == 1  # the supervised default
     true = write_point_mass(held_out, episodes=6, seed=6, with_actions=False, discrete=True)
     relabel(checkpoint, held_out)
     dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out)

@@ -134,7 +134,15 @@ def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(car
     bc = tmp_path / "bc"
     run_cli(
         "lerobot-train",
-        *train_args(labelled, cartpole_random, bc, "--steps=150", "--batch_size=64", "--policy.supervised=true"),
+        *train_args(
+            labelled,
+            cartpole_random,
+            bc,
+            "--steps=150",
+            "--batch_size=64",
+            "--policy.supervised=true",
+            "--policy.idm_context=0",
+        ),  # fmt: skip
     )
     assert not (bc / CHECKPOINT / CYCLES_FILE).exists()  # no rollouts, no cycles
     policy = IUPEPolicy.from_pretrained(bc / CHECKPOINT)

@@ -70,7 +70,12 @@ class IUPEPolicy(PreTrainedPolicy):
         return (obs.float() - self.state_mean) / self.state_std
 
     def idm_output(self, state: Tensor, next_state: Tensor) -> Tensor:
-        """The IDM head's distribution parameters (logits) for a → (s_t, s_{t+1})."""
+        """The IDM head's distribution parameters (logits) for a → (s_t, s_{t+1}) (an IDM without context)."""
+        if self.config.idm_context:
+            raise ValueError(
+                f"this IDM reads {len(self.config.idm_window)} frames (idm_context={self.config.idm_context}); "
+                "use idm_window_output"
+            )
         return self.idm_window_output(torch.stack([state, next_state], dim=1))
 
     def idm_window_output(self, window: Tensor) -> Tensor:
@@ -78,7 +83,7 @@ class IUPEPolicy(PreTrainedPolicy):
         # Input [s_t, s_j - s_t for every other frame j]: with frame differences an image IDM learns in far fewer
         # steps than from separately encoded frames (0.995 vs 0.71 accuracy on expert moves in a reference
         # measurement). For k = 0 this is [s_t, s_{t+1} - s_t].
-        k = self.config.idm_context
+        k = self.config.idm_context or 0
         frames = [self._prepare(window[:, j]) for j in range(window.shape[1])]
         s = frames[k]
         return self.idm_head(self.idm_encoder(torch.cat([s] + [f - s for j, f in enumerate(frames) if j != k], dim=1)))
