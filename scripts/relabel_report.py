@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+MEASURABLE = 0.1  # (a)'s success rate below which the ratio (b) / (a) says nothing
+
 
 def load(out: Path) -> dict:
     path = out / "relabel.json"
@@ -75,7 +77,7 @@ def render(out: Path) -> str:
                 summary[env, arm] = rates.mean()
                 lines.append(
                     f"| {env} | {arm} | {len(mine)} | {', '.join(f'{x:.2f}' for x in rates)} | "
-                    f"{rates.mean():.3f} ± {rates.std():.3f} | {np.mean([r['avg_sum_reward'] for r in mine]):.1f} |"
+                    f"{rates.mean():.3f} ± {rates.std():.3f} | {np.mean([r['avg_sum_reward'] for r in mine]):.2f} |"
                 )
         lines += ["", "| env | labels | (b) / (a) | target 0.9 |", "|---|---|---|---|"]
         for (env, arm), b in summary.items():
@@ -83,7 +85,10 @@ def render(out: Path) -> str:
                 continue
             a = summary[env, "true"]
             ratio = b / a if a > 0 else float("nan")
-            met = "met" if a > 0 and ratio >= 0.9 else "missed" if a > 0 else "undefined: (a) is 0"
+            # a ratio of two rates near zero is noise, not a result
+            met = "met" if ratio >= 0.9 else "missed"
+            if a < MEASURABLE:
+                met = f"not measurable: (a) is below {MEASURABLE} (ACT does not learn the task from true actions)"
             lines.append(f"| {env} | {arm} | {_f(ratio)} | {met} |")
         lines.append("")
     if data.get("downstream_labels"):
