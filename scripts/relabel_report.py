@@ -91,6 +91,8 @@ def render(out: Path) -> str:
                 met = f"not measurable: (a) is below {MEASURABLE} (ACT does not learn the task from true actions)"
             lines.append(f"| {env} | {arm} | {_f(ratio)} | {met} |")
         lines.append("")
+    if data.get("downstream_findings"):
+        lines += ["### Reading", "", *[f"- {f}" for f in data["downstream_findings"]], ""]
     if data.get("downstream_labels"):
         lines += [
             "### The labels of (b), against the stripped true actions (frames with a successor)",
