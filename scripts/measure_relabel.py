@@ -1,5 +1,5 @@
-"""Measure lerobot-iupe-relabel: label accuracy against the true actions, and throughput beside the plain decode
-rate of the same video. Writes benchmarks/relabel.md and benchmarks/relabel.json.
+"""Label accuracy of the IDMs of full IUPE runs against the true actions. Writes the "accuracy" section of
+benchmarks/relabel.json and renders benchmarks/relabel.md (throughput: scripts/measure_throughput.py).
 
     python scripts/measure_relabel.py
 Checkpoints come from normal training runs: the benchmark's (IUPE, seed 0) or `python scripts/demo.py --env <env>`.
@@ -8,7 +8,6 @@ then stripped of them with LeRobot's `remove_feature`, relabelled, and compared 
 """
 
 import argparse
-import json
 import shutil
 import subprocess
 import sys
@@ -16,14 +15,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
 
 from lerobot_iupe.benchmark import CHECKPOINT
-from lerobot_iupe.data.readers import video_chunks
 from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
 
 BIN = Path(sys.executable).parent
+sys.path.insert(0, str(Path(__file__).parent))
+from relabel_report import render, update  # noqa: E402
+
 ENVS = {  # demo preset -> collect flags
     "cartpole": ["--env.type=cartpole"],
     "mountaincar": ["--env.type=mountaincar"],
@@ -84,56 +85,9 @@ def accuracy(env: str, work: Path, episodes: int) -> dict:
     }
 
 
-def relabel_rate(checkpoint: Path, root: Path, batch_size: int) -> float:
-    """Frames/s of the relabel pass itself, as the CLI reports it (dry run: labelling without writing)."""
-    out = run(
-        "lerobot-iupe-relabel", f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}",
-        f"--dataset.root={root}", "--dry_run=true", "--video_backend=pyav", f"--batch_size={batch_size}",
-    )  # fmt: skip
-    line = next(line for line in out.splitlines() if "frames/s" in line)
-    return float(line.split("(")[-1].split(" frames/s")[0])
-
-
-def decode_rate(root: Path, batch_size: int) -> float:
-    meta = LeRobotDatasetMetadata("local/d", root=root)
-    start = time.perf_counter()
-    chunks = video_chunks(meta, "observation.image", batch_size, "pyav")
-    frames = sum(len(c.frames) - 1 + c.ends_episode for c in chunks)
-    return frames / (time.perf_counter() - start)
-
-
-def throughput(work: Path, batch_size: int) -> list[dict]:
-    rows = []
-    vector = work / "cartpole-throughput"
-    run(
-        "lerobot-iupe-collect", "--env.type=cartpole", "--agent=expert", "--episodes=100", "--seed=710000",
-        f"--dataset.repo_id=local/{vector.name}", f"--dataset.root={vector}",
-    )  # fmt: skip
-    frames = LeRobotDatasetMetadata("local/v", root=vector).total_frames
-    rows.append(
-        {"dataset": f"CartPole state, {frames} frames", "relabel_fps": relabel_rate(checkpoint_of("cartpole"), vector,
-         batch_size), "decode_fps": None}
-    )  # fmt: skip
-    video = work / "maze5-throughput"
-    run(
-        "lerobot-iupe-collect", "--env.type=maze", "--env.size=5", "--agent=random", "--random_start=true",
-        "--episodes=200", "--seed=720000", f"--dataset.repo_id=local/{video.name}", f"--dataset.root={video}",
-    )  # fmt: skip
-    frames = LeRobotDatasetMetadata("local/v", root=video).total_frames
-    rows.append(
-        {
-            "dataset": f"Maze 5×5 64×64 AV1 video (pyav), {frames} frames",
-            "relabel_fps": relabel_rate(checkpoint_of("maze5"), video, batch_size),
-            "decode_fps": decode_rate(video, batch_size),
-        }
-    )
-    return rows
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=50, help="expert episodes per env for the accuracy check")
-    parser.add_argument("--batch_size", type=int, default=512)
     parser.add_argument("--work", default="outputs/measure-relabel")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -141,36 +95,9 @@ def main() -> None:
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     accuracies = [accuracy(env, work, args.episodes) for env in ENVS]
-    rates = throughput(work, args.batch_size)
     command = " ".join(["python", "scripts/measure_relabel.py", *sys.argv[1:]])
-    lines = [
-        "# lerobot-iupe-relabel: measured",
-        "",
-        f"Produced by `{command}` on a 2-core CPU (no GPU). Checkpoints: "
-        + ", ".join(f"{env} `{checkpoint_of(env)}`" for env in ENVS)
-        + ".",
-        "",
-        "## Label accuracy (expert data on unseen seeds, true actions stripped, relabelled, compared)",
-        "",
-        "| env | episodes | frames compared | agreement |",
-        "|---|---|---|---|",
-        *[f"| {a['env']} | {a['episodes']} | {a['frames_compared']} | {a['agreement']:.4f} |" for a in accuracies],
-        "",
-        f"## Throughput (batch {args.batch_size}, CPU)",
-        "",
-        "| dataset | relabel frames/s | plain decode frames/s | ratio |",
-        "|---|---|---|---|",
-    ]
-    for r in rates:
-        decode = f"{r['decode_fps']:.0f}" if r["decode_fps"] else "–"
-        ratio = f"{r['relabel_fps'] / r['decode_fps']:.2f}" if r["decode_fps"] else "–"
-        lines.append(f"| {r['dataset']} | {r['relabel_fps']:.0f} | {decode} | {ratio} |")
-    out = Path(args.out)
-    out.mkdir(exist_ok=True)
-    (out / "relabel.md").write_text("\n".join(lines) + "\n")
-    (out / "relabel.json").write_text(json.dumps({"command": command, "accuracy": accuracies, "throughput": rates},
-                                                 indent=2) + "\n")  # fmt: skip
-    print("\n".join(lines))
+    update(Path(args.out), "accuracy", accuracies, command)
+    print(render(Path(args.out)))
 
 
 if __name__ == "__main__":

@@ -154,4 +154,6 @@ def render(out: Path) -> str:
             ratio = f"{r['relabel_fps'] / r['decode_fps']:.2f}" if r.get("decode_fps") else "–"
             lines.append(f"| {r['dataset']} | {r.get('processes', 1)} | {r['relabel_fps']:.0f} | {decode} | {ratio} |")
         lines.append("")
+        if data.get("throughput_findings"):
+            lines += ["### Reading", "", *[f"- {f}" for f in data["throughput_findings"]], ""]
     return "\n".join(lines)
