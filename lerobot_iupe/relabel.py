@@ -128,14 +128,11 @@ class RelabelReport:
     written: bool = False
     # Under torchrun only process 0 gathers, writes and reports; the others return a report with this False.
     first_process: bool = True
+    continuous: bool = False
 
     @property
     def frames_per_second(self) -> float:
         return self.frames / max(self.seconds, 1e-9)
-
-    @property
-    def continuous(self) -> bool:
-        return self.action_names != ["action_id"]
 
     def summary(self) -> str:
         if self.continuous:
@@ -495,6 +492,7 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
         agreement_with_existing=agreement,
         seconds=seconds,
         processes=world,
+        continuous=config.is_continuous,
     )
     if cfg.dry_run:
         return report
