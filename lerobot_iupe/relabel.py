@@ -460,6 +460,8 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
     reader = FrameReader(dataset, keys, backend)
     per_episode = label_spans_with_idm(policy, reader, spans, cfg.mode, cfg.seed, cfg.device, progress=rank == 0)
     per_episode = gather_on_first(per_episode, world)
+    if world > 1:  # no collective after this; a group left alive aborts the process at exit (gloo's threads)
+        dist.destroy_process_group()
     seconds = time.perf_counter() - start
     if per_episode is None:  # not the first process: process 0 writes
         return RelabelReport(
