@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -24,21 +23,12 @@ from lerobot.datasets.dataset_tools import remove_feature
 from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.policy.algorithm import r_squared
 
-BIN = Path(sys.executable).parent
 sys.path.insert(0, str(Path(__file__).parent))
 from measure_downstream import lunar_effect  # noqa: E402
-from relabel_report import render, update  # noqa: E402
+from relabel_report import render, run, update  # noqa: E402
 
 ENVS = {"cartpole": 1500, "mountaincar": 1500, "acrobot": 1500, "lunarlander": 2000, "so101_pickplace": 2000}
 CHECKPOINT = "checkpoints/last/pretrained_model"
-
-
-def run(*args: str) -> None:
-    print("$", " ".join(args), flush=True)
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True)
-    if result.returncode:
-        print(result.stdout[-3000:], result.stderr[-3000:])
-        raise SystemExit(f"{args[0]} failed ({result.returncode})")
 
 
 def collect(env: str, root: Path, episodes: int, seed: int) -> None:

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -31,9 +29,8 @@ from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.envs.configs import env_config_from_settings
 from lerobot_iupe.policy.algorithm import r_squared
 
-BIN = Path(sys.executable).parent
 sys.path.insert(0, str(Path(__file__).parent))
-from relabel_report import render, update  # noqa: E402
+from relabel_report import render, run, update  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
 ENVS = {  # env type -> (expert episodes, IDM steps, ACT steps)
@@ -50,22 +47,12 @@ ACT_FLAGS = [
 COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]
 
 
-def run(*args: str) -> None:
-    print("$", " ".join(args), flush=True)
-    # One intra-op thread per run: two runs share the two cores instead of four threads fighting over them.
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, env=env)
-    if result.returncode:
-        print(result.stdout[-3000:], result.stderr[-3000:])
-        raise SystemExit(f"{args[0]} failed ({result.returncode})")
-
-
 def train(dataset: Path, out: Path, steps: int, seed: int, flags: list[str]) -> Path:
     if not (out / CHECKPOINT).exists():
         shutil.rmtree(out, ignore_errors=True)
         run(
             "lerobot-train", *flags, *COMMON, f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
-            f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}", f"--seed={seed}",
+            f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}", f"--seed={seed}", threads=1,
         )  # fmt: skip
     return out / CHECKPOINT
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -21,20 +20,10 @@ from lerobot.datasets import LeRobotDatasetMetadata
 
 from lerobot_iupe.data.readers import video_chunks
 
-BIN = Path(sys.executable).parent
 sys.path.insert(0, str(Path(__file__).parent))
-from relabel_report import render, update  # noqa: E402
+from relabel_report import BIN, render, run, update  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
-
-
-def run(*args: str) -> str:
-    print("$", " ".join(args), flush=True)
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True)
-    if result.returncode:
-        print(result.stdout[-3000:], result.stderr[-3000:])
-        raise SystemExit(f"{args[0]} failed ({result.returncode})")
-    return result.stdout
 
 
 def prepare(work: Path, name: str, collect: list[str]) -> tuple[Path, Path]:

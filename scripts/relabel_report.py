@@ -5,9 +5,26 @@ produced them, and the page is rendered from the whole file."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+
+BIN = Path(sys.executable).parent
+
+
+def run(*args: str, threads: int | None = None) -> str:
+    """Run an installed console script (``threads``: its OMP_NUM_THREADS); print its tail and stop on failure."""
+    print("$", " ".join(args), flush=True)
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads)} if threads else None
+    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, env=env)
+    if result.returncode:
+        print(result.stdout[-3000:], result.stderr[-3000:])
+        raise SystemExit(f"{args[0]} failed ({result.returncode})")
+    return result.stdout
+
 
 MEASURABLE = 0.1  # (a)'s success rate below which the ratio (b) / (a) says nothing
 

@@ -123,6 +123,7 @@ def test_overwrite_replaces_existing_actions(cartpole_run, data_dir, tmp_path):
         ("other_state_size", "has shape (6,) in the dataset"),
         ("not_a_checkpoint", "holds no config.json"),
         ("bad_mode", "--mode=greedy"),
+        ("bad_threads", "--num_threads must be at least 1"),
     ],
 )
 def test_mismatches_are_clear_errors_and_write_nothing(case, message, cartpole_run, maze_expert, data_dir, tmp_path):
@@ -143,6 +144,8 @@ def test_mismatches_are_clear_errors_and_write_nothing(case, message, cartpole_r
         checkpoint = tmp_path
     elif case == "bad_mode":
         extra = ["--mode=greedy"]
+    elif case == "bad_threads":
+        extra = ["--num_threads=0"]
     before = tree_digest(dataset)
     result = run_cli("lerobot-iupe-relabel", *relabel_args(checkpoint, dataset, *extra), check=False)
     assert result.returncode == 2 and message in result.stderr, result.stderr[-2000:]

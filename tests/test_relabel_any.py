@@ -254,6 +254,13 @@ def test_incompatible_fps_and_action_names_are_refused_naming_both_sides(continu
     assert result.returncode == 2 and "joint_1" in result.stderr and "force_x" in result.stderr
     assert before == {p: p.read_bytes() for p in renamed.rglob("*") if p.is_file()}
 
+    discrete = work / "discrete-actions"
+    write_point_mass(discrete, episodes=1, seed=13, with_actions=True, discrete=True)
+    before = {p: p.read_bytes() for p in discrete.rglob("*") if p.is_file()}
+    result = relabel(continuous_idm, discrete, "--overwrite=true", check=False)
+    assert result.returncode == 2 and "int64" in result.stderr and "float32" in result.stderr
+    assert before == {p: p.read_bytes() for p in discrete.rglob("*") if p.is_file()}
+
 
 def test_a_window_needs_supervised_training():
     with pytest.raises(ValueError, match="--policy.supervised=true"):
