@@ -103,7 +103,7 @@ def test_gaussian_draws_and_modes_stay_within_the_bounds():
     np.testing.assert_allclose(head.mode(output)[0].numpy(), [1.0, 0.05], atol=1e-6)
 
 
-def test_gaussian_loss_is_the_negative_log_likelihood_minimised_at_the_data():
+def test_gaussian_loss_is_minimised_at_the_data_mean_and_spread():
     rng = np.random.default_rng(0)
     actions = torch.tensor(np.stack([rng.normal(0.3, 0.2, 5000), rng.normal(1.5, 0.1, 5000)], 1), dtype=torch.float32)
     head = GaussianHead(hidden=1, action_dim=2, low=LOW.tolist(), high=HIGH.tolist())
@@ -112,6 +112,61 @@ def test_gaussian_loss_is_the_negative_log_likelihood_minimised_at_the_data():
     for shifted in ([0.4, 0.5, np.log(0.2), np.log(0.1)], [0.3, 0.5, np.log(0.4), np.log(0.1)]):
         worse = torch.tensor([shifted], dtype=torch.float32).repeat(5000, 1)
         assert head.loss(best, actions) < head.loss(worse, actions)
+
+
+def test_gaussian_std_learns_from_detached_features_and_never_moves_the_mean():
+    torch.manual_seed(0)
+    head = GaussianHead(hidden=3, action_dim=2, low=LOW.tolist(), high=HIGH.tolist())
+    features = torch.randn(8, 3, requires_grad=True)
+    output = head(features)
+    # a gradient on the log-std reaches the head's log-std rows only: not the features, not the mean rows
+    output[:, 2:].sum().backward()
+    assert features.grad is None or not features.grad.any()
+    assert not head.weight.grad[:2].any() and head.weight.grad[2:].any()
+    # the mean's gradient is that of the squared error alone, whatever the std
+    actions = torch.tensor([[0.5, 1.0]] * 8)
+    for log_std in (-4.0, 0.5):
+        out = torch.cat([output[:, :2].detach(), torch.full((8, 2), log_std)], 1).requires_grad_(True)
+        head.loss(out, actions).backward()
+        mse = torch.cat([output[:, :2].detach(), torch.zeros(8, 2)], 1).requires_grad_(True)
+        (head._scale(actions) - mse[:, :2]).square().mean().backward()
+        torch.testing.assert_close(out.grad[:, :2], mse.grad[:, :2])
+
+
+def test_gaussian_head_mean_fits_a_regression_with_a_hard_dimension_and_uneven_noise():
+    """The mean must fit as a plain regression does where the likelihood alone starves it: one dimension is a
+    chirp (hard to fit) and the other's noise is 15x larger in half of the inputs. Trained by the joint likelihood,
+    the same network reached R² 0.52-0.72 on the chirp (4 seeds); the mode must reach 0.95 on both dimensions,
+    and the predicted std must follow the noise."""
+    from lerobot_iupe.policy.networks import VectorEncoder
+
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+
+    def data(n):
+        x = rng.uniform(-1, 1, (n, 2)).astype(np.float32)
+        mean = np.stack([0.8 * np.sin(4.5 * (x[:, 0] + 1) ** 2), 0.8 * np.sin(3 * x[:, 1])], 1)
+        noise = np.stack([np.full(n, 0.01), np.where(x[:, 0] > 0, 0.15, 0.01)], 1)
+        return torch.tensor(x), mean, torch.tensor(mean + noise * rng.normal(size=mean.shape), dtype=torch.float32)
+
+    x, _, y = data(4000)
+    test_x, test_mean, _ = data(2000)
+    encoder, head = VectorEncoder(2, 16, 64, attention=True), GaussianHead(64, 2, [-1.0, -1.0], [1.0, 1.0])
+    optimizer = torch.optim.Adam([*encoder.parameters(), *head.parameters()], 1e-3)
+    for _ in range(2500):
+        idx = torch.randint(0, len(x), (128,))
+        loss = head.loss(head(encoder(x[idx])), y[idx])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    with torch.no_grad():
+        output = head(encoder(test_x))
+    predicted = head.mode(output).numpy()
+    r2 = 1 - ((predicted - test_mean) ** 2).sum(0) / ((test_mean - test_mean.mean(0)) ** 2).sum(0)
+    assert (r2 > 0.95).all(), r2
+    _, std = head.mean_and_std(output)
+    noisy = test_x[:, 0] > 0
+    assert std[noisy, 1].median() > 3 * std[~noisy, 1].median()
 
 
 def test_categorical_and_gaussian_heads_have_the_same_methods():

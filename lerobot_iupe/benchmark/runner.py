@@ -183,6 +183,21 @@ class Benchmark:
             self.calls_file.write_text("".join(json.dumps(c) + "\n" for c in json.loads(calls.read_text())))
         return len(new)
 
+    def forget(self, runs: list[tuple[str, str, str, int | None]]) -> int:
+        """Drop the records of ``runs`` (table, env, method, seed) from ``runs.jsonl``; returns how many rows went.
+        The file is replaced whole (written beside it, then renamed), so an interruption loses nothing."""
+        keep, dropped, runs = [], 0, set(runs)
+        for record in self.records():
+            if (record["table"], record["env"], record["method"], record["seed"]) in runs:
+                dropped += 1
+            else:
+                keep.append(record)
+        if dropped:
+            partial = self.records_file.with_suffix(".jsonl.partial")
+            partial.write_text("".join(json.dumps(r) + "\n" for r in keep))
+            partial.replace(self.records_file)
+        return dropped
+
     def _save(self, record: dict) -> None:
         self.work.mkdir(parents=True, exist_ok=True)
         with self.records_file.open("a") as f:

@@ -48,7 +48,10 @@ def main() -> None:
         "--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata", "continuous"],
         help="continuous: LunarLander and SO-101 (all Table 1 methods) and LunarLander's low-data row",
     )  # fmt: skip
-    parser.add_argument("--envs", nargs="+", default=list(PRESETS), choices=list(PRESETS), help="Table 1 envs")
+    parser.add_argument(
+        "--envs", nargs="+", default=[*PRESETS, *CONTINUOUS], choices=[*PRESETS, *CONTINUOUS],
+        help="envs of every table (Table 1 and the ablation: %(default)s minus the continuous ones)",
+    )  # fmt: skip
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS, help="Table 1 methods")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
     parser.add_argument(
@@ -64,6 +67,11 @@ def main() -> None:
         help="first add the runs and calls of a committed report (DIR/results.json, DIR/calls.json) to --work, so "
         "only runs missing from it are trained (e.g. --from=benchmarks on a fresh clone)",
     )  # fmt: skip
+    parser.add_argument(
+        "--rerun", action="store_true",
+        help="train and evaluate the selected runs again even where --work (or --from) records them: after a change "
+        "to a learner, whose runs' configuration is otherwise unchanged; their old records are dropped",
+    )  # fmt: skip
     args = parser.parse_args()
     if args.from_dir and not (Path(args.from_dir) / "results.json").exists():
         parser.error(f"--from: {args.from_dir} holds no results.json (a benchmark call's --out, e.g. benchmarks)")
@@ -78,16 +86,17 @@ def main() -> None:
             print(f"[benchmark] {added} records added from {args.from_dir}/results.json", flush=True)
         requests = []
         if "table1" in args.tables:
-            for env in args.envs:
+            for env in (e for e in args.envs if e in PRESETS):
                 requests.append(dict(table="table1", name=env, preset=PRESETS[env], methods=args.methods))
         if "lowdata" in args.tables:
             for env, preset in LOW_DATA.items():
-                if env not in CONTINUOUS:
+                if env not in CONTINUOUS and env in args.envs:
                     requests.append(dict(table="lowdata", name=env, preset=preset, methods=LOW_DATA_METHODS))
         if "continuous" in args.tables:
             for env, preset in CONTINUOUS.items():
-                requests.append(dict(table="continuous", name=env, preset=preset, methods=args.methods))
-            for env in (e for e in LOW_DATA if e in CONTINUOUS):
+                if env in args.envs:
+                    requests.append(dict(table="continuous", name=env, preset=preset, methods=args.methods))
+            for env in (e for e in LOW_DATA if e in CONTINUOUS and e in args.envs):
                 low = dict(table="lowdata", name=env, preset=LOW_DATA[env], methods=LOW_DATA_CONTINUOUS_METHODS)
                 requests.append(low)
         if "ablation" in args.tables:
@@ -95,6 +104,11 @@ def main() -> None:
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))
             variants = [v for v in ABLATION if v not in ("bco", "iupe")]
             requests.append(dict(table="ablation", name="maze10", preset=PRESETS["maze10"], methods=variants))
+        if args.rerun:
+            dropped = bench.forget(
+                [(r["table"], r["name"], m, s) for r in requests for m in r["methods"] for s in [*args.seeds, None]]
+            )
+            print(f"[benchmark] --rerun: {dropped} recorded rows dropped", flush=True)
         runs = bench.plan_all([{**request, "seeds": args.seeds} for request in requests], jobs=args.jobs)
         unique = {(run.table, run.name, run.method, run.seed): run for run in runs}
         bench.execute(list(unique.values()), jobs=args.jobs)
