@@ -57,6 +57,9 @@ class IUPEConfig(PreTrainedConfig):
     # None = 1 when supervised (best overall in benchmarks/relabel.md), else 0; resolved when training starts, so
     # config.json records it (a checkpoint saved before this option existed reads as 0).
     idm_context: int | None = None
+    # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
+    # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
+    n_obs_steps: int = 1
     # Frames per second of the data the model was trained on (filled from the dataset; checked when relabelling).
     fps: int | None = None
     # Continuous actions: the sampling rule's action classes are K cells of a k-means partition of the
@@ -117,6 +120,8 @@ class IUPEConfig(PreTrainedConfig):
                 f"--policy.idm_context={self.idm_context} needs --policy.supervised=true: the IUPE cycle's "
                 "pre-demonstrations and rollouts are single transitions (s_t, a_t, s_{t+1})"
             )
+        if self.n_obs_steps < 1:
+            raise ValueError(f"--policy.n_obs_steps must be 1 or more observations, got {self.n_obs_steps}")
         if self.action_cells < 1:
             raise ValueError(f"--policy.action_cells must be at least 1, got {self.action_cells}")
         if (self.action_low is None) != (self.action_high is None) or (
@@ -164,6 +169,11 @@ class IUPEConfig(PreTrainedConfig):
         """Frame offsets the IDM reads around t: -k … k+1."""
         k = self.idm_context or 0
         return list(range(-k, k + 2))
+
+    @property
+    def obs_window(self) -> list[int]:
+        """Frame offsets the policy model reads: -(n-1) … 0."""
+        return list(range(1 - self.n_obs_steps, 1))
 
     @property
     def action_dim(self) -> int:

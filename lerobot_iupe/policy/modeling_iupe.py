@@ -33,17 +33,17 @@ class IUPEPolicy(PreTrainedPolicy):
         # Several vector keys are concatenated, several cameras stacked as channels (in observation_keys order).
         shapes = [tuple(config.input_features[k].shape) for k in config.observation_keys]
         hidden = config.hidden_dim
-        frames = len(config.idm_window)
+        frames, history = len(config.idm_window), config.n_obs_steps
         if config.is_image:
             channels = sum(shape[0] for shape in shapes)
             encoder = lambda c: make_image_encoder(  # noqa: E731
                 config.image_backbone, c, config.cnn_width, hidden, config.attention
             )
-            self.idm_encoder, self.pm_encoder = encoder(frames * channels), encoder(channels)
+            self.idm_encoder, self.pm_encoder = encoder(frames * channels), encoder(history * channels)
         else:
             dim = sum(shape[0] for shape in shapes)
             self.idm_encoder = VectorEncoder(frames * dim, config.token_dim, hidden, config.attention)
-            self.pm_encoder = VectorEncoder(dim, config.token_dim, hidden, config.attention)
+            self.pm_encoder = VectorEncoder(history * dim, config.token_dim, hidden, config.attention)
         self.idm_head = make_action_head(hidden, config)
         self.pm_head = make_action_head(hidden, config)
         state_dim = 1 if config.is_image else dim
@@ -56,6 +56,7 @@ class IUPEPolicy(PreTrainedPolicy):
             self.state_mean.copy_(torch.as_tensor(stat("mean")))
             self.state_std.copy_(torch.as_tensor(stat("std")).clamp_min(1e-3))
         self.dataset_meta = dataset_meta
+        self._history: Tensor | None = None  # select_action's last n_obs_steps observations (B, n, …)
         # lerobot-train seeds torch with its --seed just before building the policy: that seed drives IUPE's own
         # streams unless --policy.seed is given.
         seed = config.seed if config.seed is not None else torch.initial_seed() % 2**62
@@ -89,8 +90,24 @@ class IUPEPolicy(PreTrainedPolicy):
         return self.idm_head(self.idm_encoder(torch.cat([s] + [f - s for j, f in enumerate(frames) if j != k], dim=1)))
 
     def pm_output(self, state: Tensor) -> Tensor:
-        """The policy head's distribution parameters (logits) for a → s_t."""
-        return self.pm_head(self.pm_encoder(self._prepare(state)))
+        """The policy head's distribution parameters (logits) for a → s_t (a policy of the current state only)."""
+        if self.config.n_obs_steps > 1:
+            raise ValueError(
+                f"this policy reads {self.config.n_obs_steps} observations (n_obs_steps); use pm_history_output"
+            )
+        return self.pm_history_output(state.unsqueeze(1))
+
+    def pm_history_output(self, history: Tensor) -> Tensor:
+        """The policy head's distribution parameters for a_t → the last observations (B, n_obs_steps, …), oldest
+        first, concatenated (channels for images)."""
+        return self.pm_head(self.pm_encoder(torch.cat(list(self._prepare(history).unbind(1)), dim=1)))
+
+    def push_history(self, history: Tensor | None, observation: Tensor) -> Tensor:
+        """``history`` (B, n, …) moved on by one ``observation`` (B, …); a new episode (None, or another batch
+        size) starts as n copies of its first observation."""
+        if history is None or history.shape[0] != observation.shape[0]:
+            return observation.unsqueeze(1).repeat_interleave(self.config.n_obs_steps, dim=1)
+        return torch.cat([history[:, 1:], observation.unsqueeze(1)], dim=1)
 
     def observation(self, batch: dict[str, Tensor]) -> Tensor:
         """The policy's input from a LeRobot batch: its observation keys, concatenated (channels for images)."""
@@ -116,7 +133,8 @@ class IUPEPolicy(PreTrainedPolicy):
         return pm + self.idm_parameters() if self.config.supervised else pm
 
     def reset(self) -> None:
-        pass
+        """A new episode: forget the observation history (LeRobot's env loop calls this before each rollout)."""
+        self._history = None
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
@@ -126,7 +144,8 @@ class IUPEPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """The policy model's action as LeRobot's env loop wants it, (B, action_dim): the mode, or a draw with
         ``eval_mode="sample"`` (whatever the training switches). Training rollouts draw on their own."""
-        output = self.pm_output(self.observation(batch))
+        self._history = self.push_history(self._history, self.observation(batch))
+        output = self.pm_history_output(self._history)
         return self.pm_head.as_float_action(self.pm_head.choose(output, self.config.eval_mode == "sample"))
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
@@ -140,13 +159,13 @@ class IUPEPolicy(PreTrainedPolicy):
         rows = expert.rows(batch["index"])
         if self.config.supervised:  # BC on the true actions, and the IDM on the same frames and actions
             labels = expert.actions[rows]
-            pm_loss = self.pm_head.loss(self.pm_output(expert.states[rows]), labels)
+            pm_loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
             idm_loss = self.idm_head.loss(self.idm_window_output(expert.windows(rows, self.config.idm_window)), labels)
             loss = pm_loss + idm_loss
             return loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
         state, next_state = expert.pairs(rows)
         labels = self.trainer.labels(state, next_state)  # first: on the first step it starts (or restores) the cycle
-        loss = self.pm_head.loss(self.pm_output(state), labels)
+        loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
         return loss, {"pm_loss": float(loss.detach()), **self.trainer.stats}
 
     def update(self) -> None:

@@ -304,9 +304,18 @@ class IUPETrainer:
         generator = self.state.torch_rng if self.state else None
         continuous = self.config.is_continuous
 
+        history: Tensor | None = None  # every env's last n_obs_steps observations (E, n, …)
+
         def act(observations: list[dict], active: list[int]) -> list:
+            nonlocal history
             obs = torch.as_tensor(np.stack([self.observation(o) for o in observations]), device=self.device)
-            actions = policy.pm_head.choose(policy.pm_output(obs), explore, generator).cpu().numpy()
+            if history is None:  # the first step: every env is active
+                history = policy.push_history(None, obs)
+            else:
+                rows = torch.as_tensor(active, device=self.device)
+                history[rows] = policy.push_history(history[rows], obs)
+            actions = policy.pm_head.choose(policy.pm_history_output(history[active]), explore, generator)
+            actions = actions.cpu().numpy()
             return list(actions) if continuous else [int(a) for a in actions]
 
         seeds = [seed + i for i in range(episodes)]
