@@ -34,13 +34,14 @@ ENV_TYPES = ("cartpole", "acrobot", "mountaincar", "maze", "lunarlander", "so101
 class CollectConfig:
     env: EnvConfig | None = None
     dataset: DatasetTarget = field(default_factory=DatasetTarget)
-    # Which built-in agent plays: "expert" or "random".
+    # Which built-in agent plays: "expert", "random" (uniform actions) or "play" (goal-agnostic play where uniform
+    # actions never reach the expert's states: so101_pickplace). Pre-demonstrations come from random or play.
     agent: str = "expert"
     # Number of episodes to record.
     episodes: int = 20
     # Episode i is reset with seed `seed + i` (mazes: on layout `seed + i`).
     seed: int = 0
-    # Keep the expert's actions (only the supervised BC baseline needs them). Random datasets always keep them.
+    # Keep the expert's actions (only the supervised BC baseline needs them). Random and play datasets keep them.
     keep_actions: bool = False
     # Maze only: start each episode from a random cell (random pre-demonstrations cover the maze better).
     random_start: bool = False
@@ -72,7 +73,7 @@ class CollectConfig:
 
     @property
     def stores_actions(self) -> bool:
-        return self.agent == "random" or self.keep_actions
+        return self.agent != "expert" or self.keep_actions
 
 
 def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = True) -> dict:

@@ -21,7 +21,7 @@ from lerobot_iupe.envs.configs import IUPEEnvConfig
 from lerobot_iupe.envs.rollout import agent_act, run_episodes
 
 Agent = Callable[[gym.Env, dict], int | np.ndarray]
-AGENTS = ("expert", "random")
+AGENTS = ("expert", "random", "play")
 CARTPOLE_GAINS = np.array([0.1, 0.5, 10.0, 1.0])
 
 
@@ -120,17 +120,32 @@ def random_agent(env: gym.Env, observation: dict) -> int | np.ndarray:
     return rng.uniform(space.low, space.high).astype(np.float32)
 
 
+def env_play(env: gym.Env, observation: dict) -> np.ndarray:
+    """The goal-agnostic play agent an env carries itself (``play_action``): SO-101's."""
+    return env.get_wrapper_attr("play_action")()
+
+
+PLAY_AGENTS = {"so101_pickplace": env_play}
+
+
 @cache
 def _mountaincar_expert() -> MountainCarExpert:
     return MountainCarExpert()
 
 
 def make_agent(env_type: str, agent: str) -> Agent:
-    """The built-in agent ``agent`` (``expert`` or ``random``) for an env type of this package."""
+    """The built-in agent ``agent`` (``expert``, ``random`` or ``play``) for an env type of this package."""
     if agent not in AGENTS:
         raise ValueError(f"--agent must be one of {list(AGENTS)}, got {agent!r}")
     if agent == "random":
         return random_agent
+    if agent == "play":
+        if env_type not in PLAY_AGENTS:
+            raise ValueError(
+                f"--agent=play: env type {env_type!r} has no play agent (envs with one: {sorted(PLAY_AGENTS)}); "
+                "use --agent=random"
+            )
+        return PLAY_AGENTS[env_type]
     experts = {
         "cartpole": lambda: cartpole_expert,
         "mountaincar": _mountaincar_expert,

@@ -22,6 +22,8 @@ CARD_TAGS = ["LeRobot", "imitation-from-observation", "iupe"]
 AGENT_DESCRIPTIONS = {
     "expert": "the package's built-in expert",
     "random": "uniform-random actions (pre-demonstrations for the inverse dynamics model)",
+    "play": "goal-agnostic play: random reachable targets and gripper commands, never reading the task's objects "
+    "(pre-demonstrations for the inverse dynamics model)",
 }
 
 

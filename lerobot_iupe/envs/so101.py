@@ -3,7 +3,7 @@
 The plugin's env reports success as ``info["succeed"]``; LeRobot's evaluation reads ``info["is_success"]`` and so
 scores it 0%. This wrapper adds ``is_success`` (and a task description) around the unmodified plugin env, and
 carries the plugin's scripted pick-and-place controller as the expert (it keeps a phase across steps, so it lives
-with the env and restarts on every reset).
+with the env and restarts on every reset) and a goal-agnostic play agent for pre-demonstrations.
 """
 
 from __future__ import annotations
@@ -12,6 +12,12 @@ import gymnasium as gym
 import numpy as np
 from lerobot_env_so101.pick_place_env import SO101PickPlaceGymEnv
 from lerobot_env_so101.scripted.pick_place import PickPlaceController
+
+# Where play reaches: the box in which the plugin places blocks and goals (x 0.15-0.30 m, y ±0.10 m), widened by
+# 3 cm, from the table (grasp point 2.5 cm up) to 15 cm above it. Geometry of the scene, not of any episode.
+PLAY_LOW, PLAY_HIGH = np.array([0.12, -0.13, 0.025]), np.array([0.33, 0.13, 0.15])
+PLAY_MAX_STEPS_PER_TARGET = 30
+PLAY_GRASP_HOLD = (5, 25)  # steps a gripper command is held, like the expert's 8-10-step closing and opening
 
 
 class SO101PickPlaceEnv(gym.Wrapper):
@@ -31,11 +37,14 @@ class SO101PickPlaceEnv(gym.Wrapper):
         )
         self.task = "so101_pickplace"
         self._controller = PickPlaceController(action_scale=action_scale)
+        self._action_scale = action_scale
         self._success = False
+        self._play: dict = {}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed)
         self._controller.reset()
+        self._play = {}
         self._success = False
         info["is_success"] = False
         return obs, info
@@ -51,3 +60,27 @@ class SO101PickPlaceEnv(gym.Wrapper):
         env = self.env.unwrapped
         block = env.data.sensor("block_pos").data
         return self._controller.act(env.ik_point_pos, block, env.goal_pos)
+
+    def play_action(self) -> np.ndarray:
+        """Goal-agnostic play, for pre-demonstrations that cover where the expert goes: the grasp point travels to
+        random targets in the table's working box at a random speed, and the gripper is opened or closed at random
+        and held for 5-25 steps. It reads the arm's own grasp point only, never the block or the goal (uniformly
+        random actions jitter the arm around its start: an IDM trained on them scored R² < 0 on the expert)."""
+        env, rng, play = self.env.unwrapped, self.env.unwrapped.np_random, self._play
+        grasp_point = np.asarray(env.ik_point_pos, dtype=np.float64)
+        if (
+            not play
+            or play["steps"] >= PLAY_MAX_STEPS_PER_TARGET
+            or np.linalg.norm(play["target"] - grasp_point) < 0.01
+        ):
+            play.update(target=rng.uniform(PLAY_LOW, PLAY_HIGH), speed=rng.uniform(0.3, 1.0), steps=0)
+            play.setdefault("grasp", 1.0)
+            play.setdefault("hold", 0)
+        if play["hold"] <= 0:
+            play["grasp"] = float(rng.integers(2)) if rng.random() < 0.8 else float(rng.uniform())
+            play["hold"] = int(rng.integers(*PLAY_GRASP_HOLD, endpoint=True))
+        play["steps"] += 1
+        play["hold"] -= 1
+        move = np.clip((play["target"] - grasp_point) / self._action_scale, -1.0, 1.0) * play["speed"]
+        move = np.clip(move + rng.normal(0.0, 0.1, 3), -1.0, 1.0)
+        return np.asarray([*move, play["grasp"]], dtype=np.float32)
