@@ -133,6 +133,26 @@ def test_gaussian_std_learns_from_detached_features_and_never_moves_the_mean():
         torch.testing.assert_close(out.grad[:, :2], mse.grad[:, :2])
 
 
+def test_gaussian_labels_with_a_spread_train_as_draws_do_on_average_without_their_noise():
+    """Exploring, a policy learns from the IDM's Gaussian (mode and std): its gradient is the average of single
+    draws' gradients, and its loss theirs less the draws' own variance (a constant)."""
+    torch.manual_seed(0)
+    head = GaussianHead(hidden=1, action_dim=2, low=LOW.tolist(), high=HIGH.tolist())
+    idm = torch.tensor([[0.2, -0.3, np.log(0.2), np.log(0.1)]]).repeat(4, 1)
+    labels, spread = head.labels(idm, head.choose(idm, explore=True), explore=True)
+    torch.testing.assert_close(labels, head.mode(idm))
+    torch.testing.assert_close(spread, torch.tensor([[0.2, 0.1]]).repeat(4, 1))
+    policy = torch.tensor([[0.1, -0.2, np.log(0.3), np.log(0.3)]], requires_grad=True)
+    expected = head.loss(policy.repeat(4, 1), labels, spread)
+    (grad_expected,) = torch.autograd.grad(expected, policy)
+    draws = head.choose(idm[:1].repeat(200_000, 1), explore=True, generator=torch.Generator().manual_seed(1))
+    sampled = head.loss(policy.repeat(len(draws), 1), draws)
+    (grad_sampled,) = torch.autograd.grad(sampled, policy)
+    assert float(sampled) == pytest.approx(float(expected + spread.square().mean()), abs=2e-3)
+    torch.testing.assert_close(grad_sampled, grad_expected, atol=2e-3, rtol=0)
+    assert head.labels(idm, labels, explore=False)[1] is None  # not exploring: the mode, exactly
+
+
 def test_gaussian_head_mean_fits_a_regression_with_a_hard_dimension_and_uneven_noise():
     """The mean must fit as a plain regression does where the likelihood alone starves it: one dimension is a
     chirp (hard to fit) and the other's noise is 15x larger in half of the inputs. Trained by the joint likelihood,

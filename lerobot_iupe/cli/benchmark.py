@@ -97,7 +97,8 @@ def main() -> None:
                 if env in args.envs:
                     requests.append(dict(table="continuous", name=env, preset=preset, methods=args.methods))
             for env in (e for e in LOW_DATA if e in CONTINUOUS and e in args.envs):
-                low = dict(table="lowdata", name=env, preset=LOW_DATA[env], methods=LOW_DATA_CONTINUOUS_METHODS)
+                methods = [m for m in LOW_DATA_CONTINUOUS_METHODS if m in args.methods]
+                low = dict(table="lowdata", name=env, preset=LOW_DATA[env], methods=methods)
                 requests.append(low)
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.

@@ -164,8 +164,9 @@ class IUPEPolicy(PreTrainedPolicy):
             loss = pm_loss + idm_loss
             return loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
         state, next_state = expert.pairs(rows)
-        labels = self.trainer.labels(state, next_state)  # first: on the first step it starts (or restores) the cycle
-        loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
+        # first: on the first step it starts (or restores) the cycle
+        labels, spread = self.trainer.labels(state, next_state)
+        loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels, spread)
         return loss, {"pm_loss": float(loss.detach()), **self.trainer.stats}
 
     def update(self) -> None:

@@ -128,9 +128,13 @@ class CategoricalHead(nn.Linear):
     def __init__(self, hidden: int, n_actions: int):
         super().__init__(hidden, n_actions)
 
-    def loss(self, output: Tensor, actions: Tensor) -> Tensor:
+    def loss(self, output: Tensor, actions: Tensor, spread: None = None) -> Tensor:
         """Negative log-likelihood of the actions (cross-entropy)."""
         return F.cross_entropy(output, actions)
+
+    def labels(self, output: Tensor, drawn: Tensor, explore: bool) -> tuple[Tensor, None]:
+        """What a policy learns from an IDM's ``output``: the drawn ids (the paper's exploration) or the modes."""
+        return drawn, None
 
     def choose(self, output: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
         """One action per row: a draw from the distribution when exploring, else its mode (argmax)."""
@@ -191,13 +195,22 @@ class GaussianHead(nn.Linear):
         mean, log_std = output.float().split(self.action_dim, dim=-1)
         return mean, log_std.clamp(*self.LOG_STD_RANGE).exp()
 
-    def loss(self, output: Tensor, actions: Tensor) -> Tensor:
+    def loss(self, output: Tensor, actions: Tensor, spread: Tensor | None = None) -> Tensor:
         """Squared error of the mean plus the negative log-likelihood (constant dropped) of the mean's detached
-        residuals under the predicted std; per dimension, scaled space."""
+        residuals under the predicted std; per dimension, scaled space. With ``spread`` (B, action_dim, scaled
+        units) the targets are Gaussians N(actions, spread²) and the loss is its expectation over them: what
+        training on one draw per target gives on average, without the draw's noise."""
         mean, std = self.mean_and_std(output)
         target = self._scale(actions.reshape(len(mean), -1))
-        z = (target - mean.detach()) / std
-        return ((target - mean).square() + 0.5 * z.square() + std.log()).mean()
+        residual = (target - mean.detach()).square() + (0.0 if spread is None else spread.square())
+        return ((target - mean).square() + 0.5 * residual / std.square() + std.log()).mean()
+
+    def labels(self, output: Tensor, drawn: Tensor, explore: bool) -> tuple[Tensor, Tensor | None]:
+        """What a policy learns from an IDM's ``output``: exploring, the IDM's whole Gaussian (its mode and std, so
+        the policy's std carries the labels' uncertainty into its rollouts), else its mode."""
+        if not explore:
+            return drawn, None
+        return self.mode(output), self.mean_and_std(output)[1]
 
     def choose(self, output: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
         """One action per row (B, action_dim): a draw from the distribution when exploring, else its mode."""

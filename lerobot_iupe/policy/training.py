@@ -216,8 +216,9 @@ class IUPETrainer:
 
     # ------------------------------------------------------------ 2. every step
 
-    def labels(self, state: Tensor, next_state: Tensor) -> Tensor:
-        """The IDM's labels of expert pairs, in eval mode (batch-norm layers keep their statistics)."""
+    def labels(self, state: Tensor, next_state: Tensor) -> tuple[Tensor, Tensor | None]:
+        """The IDM's labels of expert pairs, in eval mode (batch-norm layers keep their statistics), and their
+        spread: what the policy model's loss takes (``head.labels``)."""
         if self.state is None:
             self.start()
         policy = self.policy
@@ -226,9 +227,10 @@ class IUPETrainer:
         with torch.no_grad():
             output = policy.idm_output(state, next_state)
         policy.train(was_training)
-        labels = policy.idm_head.choose(output, self.config.exploration, self.state.torch_rng)
-        self.stats["label_non_map"] = policy.idm_head.spread(output, labels)
-        return labels
+        head = policy.idm_head
+        drawn = head.choose(output, self.config.exploration, self.state.torch_rng)
+        self.stats["label_non_map"] = head.spread(output, drawn)
+        return head.labels(output, drawn, self.config.exploration)
 
     def step_done(self) -> None:
         self.state.step += 1
