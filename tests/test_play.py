@@ -37,7 +37,7 @@ def test_play_never_reads_the_block_or_the_goal():
 def test_play_reaches_the_table_where_blocks_lie_and_uniform_random_does_not():
     play, actions = grasp_points("play", seed=0, steps=150)
     random, _ = grasp_points("random", seed=0, steps=150)
-    near_table = lambda p: (p[:, 2] < PLAY_LOW[2] + 0.02) & (p[:, 0] > 0.15) & (p[:, 0] < 0.30)  # noqa: E731
+    near_table = lambda p: (p[:, 2] < PLAY_LOW[2] + 0.03) & (p[:, 0] > 0.15) & (p[:, 0] < 0.30)  # noqa: E731
     assert near_table(play).sum() >= 5  # where the expert grasps and releases
     assert not near_table(random).any()
     assert np.ptp(play[:, 1]) > 0.5 * (PLAY_HIGH[1] - PLAY_LOW[1])  # it travels across the box

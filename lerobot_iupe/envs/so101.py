@@ -14,9 +14,11 @@ from lerobot_env_so101.pick_place_env import SO101PickPlaceGymEnv
 from lerobot_env_so101.scripted.pick_place import PickPlaceController
 
 # Where play reaches: the box in which the plugin places blocks and goals (x 0.15-0.30 m, y ±0.10 m), widened by
-# 3 cm, from the table (grasp point 2.5 cm up) to 15 cm above it. Geometry of the scene, not of any episode.
-PLAY_LOW, PLAY_HIGH = np.array([0.12, -0.13, 0.025]), np.array([0.33, 0.13, 0.15])
+# 3 cm, from grasping height (grasp point 3.5 cm above the table, where jaws close on a block) to 15 cm above it.
+# Geometry of the scene, not of any episode. Lower targets pressed the arm into the table: commands without motion.
+PLAY_LOW, PLAY_HIGH = np.array([0.12, -0.13, 0.035]), np.array([0.33, 0.13, 0.15])
 PLAY_MAX_STEPS_PER_TARGET = 30
+PLAY_PAUSE = (0.3, (5, 15))  # chance that the next move is a pause where the arm is, and the pause's steps
 PLAY_GRASP_HOLD = (5, 25)  # steps a gripper command is held, like the expert's 8-10-step closing and opening
 
 
@@ -63,17 +65,20 @@ class SO101PickPlaceEnv(gym.Wrapper):
 
     def play_action(self) -> np.ndarray:
         """Goal-agnostic play, for pre-demonstrations that cover where the expert goes: the grasp point travels to
-        random targets in the table's working box at a random speed, and the gripper is opened or closed at random
-        and held for 5-25 steps. It reads the arm's own grasp point only, never the block or the goal (uniformly
-        random actions jitter the arm around its start: an IDM trained on them scored R² < 0 on the expert)."""
+        random targets in the table's working box at a random speed or pauses where it is, and the gripper is
+        opened or closed at random and held for 5-25 steps. It reads the arm's own grasp point only, never the block
+        or the goal (uniformly random actions jitter the arm around its start: an IDM trained on them scored R² < 0
+        on the expert)."""
         env, rng, play = self.env.unwrapped, self.env.unwrapped.np_random, self._play
         grasp_point = np.asarray(env.ik_point_pos, dtype=np.float64)
-        if (
-            not play
-            or play["steps"] >= PLAY_MAX_STEPS_PER_TARGET
-            or np.linalg.norm(play["target"] - grasp_point) < 0.01
-        ):
-            play.update(target=rng.uniform(PLAY_LOW, PLAY_HIGH), speed=rng.uniform(0.3, 1.0), steps=0)
+        moving = play.get("speed", 0.0) > 0
+        reached = moving and np.linalg.norm(play["target"] - grasp_point) < 0.01
+        if not play or play["steps"] >= play["max_steps"] or reached:
+            if rng.random() < PLAY_PAUSE[0]:  # stay (as the expert does while its gripper closes or opens)
+                play.update(target=grasp_point, speed=0.0, steps=0, max_steps=int(rng.integers(*PLAY_PAUSE[1])))
+            else:
+                target, speed = rng.uniform(PLAY_LOW, PLAY_HIGH), rng.uniform(0.3, 1.0)
+                play.update(target=target, speed=speed, steps=0, max_steps=PLAY_MAX_STEPS_PER_TARGET)
             play.setdefault("grasp", 1.0)
             play.setdefault("hold", 0)
         if play["hold"] <= 0:
@@ -82,5 +87,5 @@ class SO101PickPlaceEnv(gym.Wrapper):
         play["steps"] += 1
         play["hold"] -= 1
         move = np.clip((play["target"] - grasp_point) / self._action_scale, -1.0, 1.0) * play["speed"]
-        move = np.clip(move + rng.normal(0.0, 0.1, 3), -1.0, 1.0)
+        move = np.clip(move + rng.normal(0.0, 0.1 if play["speed"] else 0.02, 3), -1.0, 1.0)
         return np.asarray([*move, play["grasp"]], dtype=np.float32)
