@@ -2,7 +2,8 @@
 --policy.supervised=true --policy.idm_context=0`, the IUPE cycle's pair IDM) on uniformly random or on play
 pre-demonstrations (`lerobot-iupe-collect --agent=random|play`, seeds 1000…) relabels held-out scripted-expert
 episodes (seeds 700000…, collected with actions, stripped with LeRobot's `remove_feature`); the labels are scored
-per action dimension (R²) against the true actions.
+per action dimension (R²) against the true actions. Each IDM reads either the whole observation (the arm's state,
+the block and the goal) or the arm's state only (`--policy.idm_observation_keys=[observation.state]`).
 
     python scripts/measure_play.py [--episodes 30] [--expert_episodes 20]
 
@@ -26,6 +27,7 @@ from lerobot_iupe.data.readers import action_array, column_array
 
 ENV = "so101_pickplace"
 NAMES = ("dx", "dy", "dz", "grasp")
+IDM_KEYS = {"whole observation": None, "arm state only": "observation.state"}
 
 
 def collect(root: Path, agent: str, episodes: int, seed: int) -> Path:
@@ -63,26 +65,30 @@ def main() -> None:
     rows = []
     for agent in ("random", "play"):
         pre = collect(work / f"{agent}-{args.episodes}", agent, args.episodes, 1000)
-        idm = work / f"idm-{agent}-{args.episodes}"
-        if not (idm / CHECKPOINT).exists():
-            shutil.rmtree(idm, ignore_errors=True)
-            run_cli(
-                "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", "--policy.idm_context=0",
-                f"--dataset.repo_id=local/{pre.name}", f"--dataset.root={pre}", f"--output_dir={idm}",
-                f"--steps={args.steps}", f"--save_freq={args.steps}", "--batch_size=64", "--num_workers=0",
-                "--policy.device=cpu", "--wandb.enable=false", "--seed=0", "--log_freq=500", quiet=True,
-            )  # fmt: skip
-        stripped = work / f"relabelled-{agent}-{args.episodes}"
-        shutil.rmtree(stripped, ignore_errors=True)
-        source = LeRobotDataset(f"local/{truth.name}", root=truth, video_backend="pyav")
-        remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
-        run_cli(
-            "lerobot-iupe-relabel", f"--policy.path={idm / CHECKPOINT}", f"--dataset.repo_id=local/{stripped.name}",
-            f"--dataset.root={stripped}", quiet=True,
-        )  # fmt: skip
         frames = LeRobotDataset(f"local/{pre.name}", root=pre).num_frames
-        rows.append({"agent": agent, "frames": frames, "r2": per_dimension_r2(inner_actions(stripped), true)})
-        print(rows[-1], flush=True)
+        for reads, key in IDM_KEYS.items():
+            tag = f"{agent}-{args.episodes}-{'all' if key is None else 'state'}"
+            idm = work / f"idm-{tag}"
+            if not (idm / CHECKPOINT).exists():
+                shutil.rmtree(idm, ignore_errors=True)
+                keys = [] if key is None else [f"--policy.idm_observation_keys=[{key}]"]
+                run_cli(
+                    "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", "--policy.idm_context=0",
+                    *keys, f"--dataset.repo_id=local/{pre.name}", f"--dataset.root={pre}", f"--output_dir={idm}",
+                    f"--steps={args.steps}", f"--save_freq={args.steps}", "--batch_size=64", "--num_workers=0",
+                    "--policy.device=cpu", "--wandb.enable=false", "--seed=0", "--log_freq=500", quiet=True,
+                )  # fmt: skip
+            stripped = work / f"relabelled-{tag}"
+            shutil.rmtree(stripped, ignore_errors=True)
+            source = LeRobotDataset(f"local/{truth.name}", root=truth, video_backend="pyav")
+            remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
+            run_cli(
+                "lerobot-iupe-relabel", f"--policy.path={idm / CHECKPOINT}",
+                f"--dataset.repo_id=local/{stripped.name}", f"--dataset.root={stripped}", quiet=True,
+            )  # fmt: skip
+            r2 = per_dimension_r2(inner_actions(stripped), true)
+            rows.append({"agent": agent, "idm_reads": reads, "frames": frames, "r2": r2})
+            print(rows[-1], flush=True)
     command = " ".join(["python", "scripts/measure_play.py", *sys.argv[1:]])
     (out / "pre_demos.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
     lines = [
@@ -91,12 +97,12 @@ def main() -> None:
         f"`{command}`: a pair IDM (k = 0) trained on {args.episodes} pre-demonstration episodes ({args.steps} steps, "
         f"batch 64) relabels {args.expert_episodes} held-out scripted-expert episodes; R² against the true actions.",
         "",
-        "| pre-demonstrations | frames | " + " | ".join(f"R² {n}" for n in NAMES) + " | mean |",
-        "|---|---|" + "---|" * (len(NAMES) + 1),
+        "| pre-demonstrations | IDM reads | frames | " + " | ".join(f"R² {n}" for n in NAMES) + " | mean |",
+        "|---|---|---|" + "---|" * (len(NAMES) + 1),
     ]
     for row in rows:
         cells = " | ".join(f"{x:.3f}" for x in row["r2"])
-        lines.append(f"| {row['agent']} | {row['frames']} | {cells} | {np.mean(row['r2']):.3f} |")
+        lines.append(f"| {row['agent']} | {row['idm_reads']} | {row['frames']} | {cells} | {np.mean(row['r2']):.3f} |")
     (out / "pre_demos.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

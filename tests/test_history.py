@@ -91,3 +91,30 @@ def test_a_policy_with_history_learns_what_the_current_observation_cannot_tell(t
         scores[n] = r_squared(np.array(played), actions)
     assert scores[2] > 0.9, scores  # trained on windows and played with the same history, oldest first
     assert scores[1] < 0.2, scores  # the current observation alone cannot
+
+
+def test_the_idm_can_read_some_observation_keys_only():
+    features = {
+        OBS_STATE: PolicyFeature(type=FeatureType.STATE, shape=(3,)),
+        "observation.environment_state": PolicyFeature(type=FeatureType.ENV, shape=(2,)),
+    }
+    config = IUPEConfig(
+        input_features=features, action_low=[-1.0], action_high=[1.0], idm_observation_keys=[OBS_STATE], device="cpu"
+    )
+    torch.manual_seed(0)
+    policy = IUPEPolicy(config).eval()
+    window = torch.randn(4, 2, 5)
+    moved = window.clone()
+    moved[..., 3:] += 10.0  # the environment state changes; the IDM must not see it
+    torch.testing.assert_close(policy.idm_window_output(moved), policy.idm_window_output(window))
+    moved[..., :3] += 1.0
+    assert not torch.allclose(policy.idm_window_output(moved), policy.idm_window_output(window))
+    acted = []
+    for shift in (0.0, 1.0):  # the policy model still reads everything
+        policy.reset()
+        observation = {OBS_STATE: window[:, 0, :3], "observation.environment_state": window[:, 0, 3:] + shift}
+        acted.append(policy.select_action(observation))
+    assert not torch.allclose(*acted)
+    with pytest.raises(ValueError, match="--policy.idm_observation_keys"):
+        IUPEConfig(input_features=features, action_low=[-1.0], action_high=[1.0],
+                   idm_observation_keys=["observation.images.top"]).validate_features()  # fmt: skip

@@ -69,6 +69,10 @@ class IUPEConfig(PreTrainedConfig):
     # key (observation.state, observation.environment_state, …), concatenated; images of several cameras are
     # stacked as channels (same size). Images and vectors together are not supported yet.
     observation_keys: list[str] | None = None
+    # The observations the IDM reads, a subset of observation_keys (vectors only); None = all of them. An arm's
+    # actions show in its own state: an SO-101 IDM trained on play that also read the block and goal labelled the
+    # expert with R² < 0 on two dimensions (it never saw a carried block move), on observation.state alone ≥ 0.93.
+    idm_observation_keys: list[str] | None = None
     # Environment of the rollouts, as {type: …, <env config fields>}; None = lerobot-train's --env.* when given,
     # else the one recorded in the expert dataset's meta/iupe.json.
     env_settings: dict | None = None
@@ -208,6 +212,13 @@ class IUPEConfig(PreTrainedConfig):
                 f"--policy.observation_keys={self.observation_keys} mixes images and vectors; IUPE reads either "
                 f"image keys ({images}) or vector keys ({vectors})"
             )
+        if self.idm_observation_keys is not None:
+            outside = [k for k in self.idm_observation_keys if k not in self.observation_keys]
+            if outside or not self.idm_observation_keys or self.is_image:
+                raise ValueError(
+                    f"--policy.idm_observation_keys={self.idm_observation_keys} must name one or more of the policy's "
+                    f"vector observation keys {self.observation_keys}"
+                )
         if self.is_image and len({tuple(features[k].shape[1:]) for k in self.observation_keys}) > 1:
             raise ValueError(f"the cameras {self.observation_keys} differ in size; IUPE stacks them and needs one size")
         # make_policy sets output_features from the dataset's actions: {} for state-only data.

@@ -40,9 +40,14 @@ class IUPEPolicy(PreTrainedPolicy):
                 config.image_backbone, c, config.cnn_width, hidden, config.attention
             )
             self.idm_encoder, self.pm_encoder = encoder(frames * channels), encoder(history * channels)
+            self.idm_columns = None
         else:
             dim = sum(shape[0] for shape in shapes)
-            self.idm_encoder = VectorEncoder(frames * dim, config.token_dim, hidden, config.attention)
+            starts = dict(zip(config.observation_keys, np.cumsum([0] + [shape[0] for shape in shapes]), strict=False))
+            idm_keys = config.idm_observation_keys or config.observation_keys
+            columns = [c for k in idm_keys for c in range(starts[k], starts[k] + config.input_features[k].shape[0])]
+            self.idm_columns = None if len(columns) == dim else torch.as_tensor(columns)
+            self.idm_encoder = VectorEncoder(frames * len(columns), config.token_dim, hidden, config.attention)
             self.pm_encoder = VectorEncoder(history * dim, config.token_dim, hidden, config.attention)
         self.idm_head = make_action_head(hidden, config)
         self.pm_head = make_action_head(hidden, config)
@@ -86,6 +91,8 @@ class IUPEPolicy(PreTrainedPolicy):
         # measurement). For k = 0 this is [s_t, s_{t+1} - s_t].
         k = self.config.idm_context or 0
         frames = [self._prepare(window[:, j]) for j in range(window.shape[1])]
+        if self.idm_columns is not None:  # --policy.idm_observation_keys: the IDM reads some keys only
+            frames = [f[:, self.idm_columns.to(f.device)] for f in frames]
         s = frames[k]
         return self.idm_head(self.idm_encoder(torch.cat([s] + [f - s for j, f in enumerate(frames) if j != k], dim=1)))
 
