@@ -22,6 +22,7 @@ def build(expert: Path, pre: Path, **overrides) -> IUPEPolicy:
     meta = LeRobotDatasetMetadata(f"local/{expert.name}", root=expert)
     settings = {"seed": 0, "rollout_episodes": 4, "cycle_steps": 2, "idm_epochs": 1, **overrides}
     config = IUPEConfig(pre_demos_repo_id=f"local/{pre.name}", pre_demos_root=str(pre), device="cpu", **settings)
+    torch.manual_seed(0)  # as lerobot-train seeds before building the policy: its weights must not follow test order
     return make_policy(config, ds_meta=meta)
 
 
