@@ -12,13 +12,13 @@ Writes benchmarks/history.json and benchmarks/history.md.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from relabel_report import write_page
 
 from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
 from lerobot_iupe.benchmark.runner import CHECKPOINT, run_cli
@@ -68,23 +68,18 @@ def main() -> None:
         rows.append({"n_obs_steps": n, "seed": seed, "success": overall["pc_success"] / 100})
         print(rows[-1], flush=True)
     command = " ".join(["python", "scripts/measure_history.py", *sys.argv[1:]])
-    (out / "history.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
-    lines = [
-        "# Policies that remember: BC on SO-101 pick-and-place with an observation history",
-        "",
-        f"`{command}`: BC on {EPISODES} scripted-expert episodes' true actions ({STEPS} steps, batch {BATCH}), "
-        f"success over {EVAL_EPISODES} episodes (seeds 500000…, cap {env_cfg.episode_length}) by the Gaussian's "
-        "mode, as `lerobot-eval` plays it by default.",
-        "",
-        "| n_obs_steps | success per seed | mean ± std (ddof 1) |",
-        "|---|---|---|",
-    ]
+    table = ["| n_obs_steps | success per seed | mean ± std (ddof 1) |", "|---|---|---|"]
     for n in args.ns:
         success = np.array([r["success"] for r in rows if r["n_obs_steps"] == n])
         spread = f" ± {success.std(ddof=1):.2f}" if len(success) > 1 else ""
-        lines.append(f"| {n} | {' / '.join(f'{s:.2f}' for s in success)} | {success.mean():.2f}{spread} |")
-    (out / "history.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+        table.append(f"| {n} | {' / '.join(f'{s:.2f}' for s in success)} | {success.mean():.2f}{spread} |")
+    intro = (
+        f"BC on {EPISODES} scripted-expert episodes' true actions ({STEPS} steps, batch {BATCH}), success over "
+        f"{EVAL_EPISODES} episodes (seeds 500000…, cap {env_cfg.episode_length}) by the Gaussian's mode, as "
+        "`lerobot-eval` plays it by default."
+    )
+    title = "Policies that remember: BC on SO-101 pick-and-place with an observation history"
+    write_page(out, "history", command, rows, title, intro, table)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,6 @@ Writes benchmarks/pre_demos.json and benchmarks/pre_demos.md.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
+from relabel_report import write_page
 
 from lerobot_iupe.benchmark.runner import CHECKPOINT, run_cli
 from lerobot_iupe.data.readers import action_array, column_array
@@ -90,21 +90,19 @@ def main() -> None:
             rows.append({"agent": agent, "idm_reads": reads, "frames": frames, "r2": r2})
             print(rows[-1], flush=True)
     command = " ".join(["python", "scripts/measure_play.py", *sys.argv[1:]])
-    (out / "pre_demos.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
-    lines = [
-        "# Pre-demonstrations for SO-101: uniformly random against goal-agnostic play",
-        "",
-        f"`{command}`: a pair IDM (k = 0) trained on {args.episodes} pre-demonstration episodes ({args.steps} steps, "
-        f"batch 64) relabels {args.expert_episodes} held-out scripted-expert episodes; R² against the true actions.",
-        "",
+    table = [
         "| pre-demonstrations | IDM reads | frames | " + " | ".join(f"R² {n}" for n in NAMES) + " | mean |",
         "|---|---|---|" + "---|" * (len(NAMES) + 1),
     ]
     for row in rows:
         cells = " | ".join(f"{x:.3f}" for x in row["r2"])
-        lines.append(f"| {row['agent']} | {row['idm_reads']} | {row['frames']} | {cells} | {np.mean(row['r2']):.3f} |")
-    (out / "pre_demos.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+        table.append(f"| {row['agent']} | {row['idm_reads']} | {row['frames']} | {cells} | {np.mean(row['r2']):.3f} |")
+    intro = (
+        f"a pair IDM (k = 0) trained on {args.episodes} pre-demonstration episodes ({args.steps} steps, batch 64) "
+        f"relabels {args.expert_episodes} held-out scripted-expert episodes; R² against the true actions."
+    )
+    title = "Pre-demonstrations for SO-101: uniformly random against goal-agnostic play"
+    write_page(out, "pre_demos", command, rows, title, intro, table)
 
 
 if __name__ == "__main__":

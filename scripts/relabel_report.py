@@ -26,6 +26,15 @@ def run(*args: str, threads: int | None = None) -> str:
     return result.stdout
 
 
+def write_page(out: Path, stem: str, command: str, rows: list[dict], title: str, intro: str, table: list[str]) -> None:
+    """A measurement's ``<stem>.json`` (its command and rows) and ``<stem>.md`` (title, command, what it measured,
+    a table) in ``out``; the page is printed too."""
+    (out / f"{stem}.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
+    lines = [f"# {title}", "", f"`{command}`: {intro}", "", *table]
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 MEASURABLE = 0.1  # (a)'s success rate below which the ratio (b) / (a) says nothing
 
 
