@@ -21,7 +21,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION
 from tqdm.auto import tqdm
 
-from lerobot_iupe.data.storage import DatasetTarget, resolve_root, staged_directory, write_iupe_meta
+from lerobot_iupe.data.storage import WrittenDataset, dataset_lock, resolve_root, staged_directory, write_iupe_meta
 from lerobot_iupe.envs.configs import IUPEEnvConfig, action_names
 from lerobot_iupe.envs.rollout import Episode, agent_act, run_episodes
 from lerobot_iupe.experts import AGENTS, make_agent
@@ -33,7 +33,7 @@ ENV_TYPES = ("cartpole", "acrobot", "mountaincar", "maze", "lunarlander", "so101
 @dataclass
 class CollectConfig:
     env: EnvConfig | None = None
-    dataset: DatasetTarget = field(default_factory=DatasetTarget)
+    dataset: WrittenDataset = field(default_factory=WrittenDataset)
     # Which built-in agent plays: "expert", "random" (uniform actions) or "play" (goal-agnostic play where uniform
     # actions never reach the expert's states: so101_pickplace). Pre-demonstrations come from random or play.
     agent: str = "expert"
@@ -50,8 +50,6 @@ class CollectConfig:
     video: bool = True
     # Replace an existing dataset root (the old one is kept until the new one is complete).
     overwrite: bool = False
-    # Push the finished dataset and its card to the hub as --dataset.repo_id (HF_ENDPOINT, your token).
-    push_to_hub: bool = False
 
     def validate(self) -> None:
         if self.env is None:
@@ -85,7 +83,7 @@ def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = T
             names = ["height", "width", "channels"]
             features[key] = {"dtype": "video" if video else "image", "shape": shape, "names": names}
         else:
-            features[key] = {"dtype": "float32", "shape": shape, "names": [f"s{i}" for i in range(shape[0])]}
+            features[key] = {"dtype": "float32", "shape": shape, "names": env_cfg.state_names(env_key)}
     if with_actions and env_cfg.n_actions:
         features[ACTION] = {"dtype": "int64", "shape": (1,), "names": ["action_id"]}
     elif with_actions:
@@ -164,7 +162,7 @@ def collect(cfg: CollectConfig) -> tuple[Path, dict]:
     cfg.validate()
     root = resolve_root(cfg.dataset.repo_id, cfg.dataset.root)
     start = time.perf_counter()
-    with staged_directory(root, cfg.overwrite) as staged:
+    with dataset_lock(root), staged_directory(root, cfg.overwrite) as staged:
         dataset = LeRobotDataset.create(
             repo_id=cfg.dataset.repo_id,
             fps=cfg.env.fps,

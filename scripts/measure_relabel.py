@@ -71,7 +71,7 @@ def accuracy(env: str, work: Path, episodes: int) -> dict:
     start = time.perf_counter()
     run(
         "lerobot-iupe-relabel", f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{stripped.name}",
-        f"--dataset.root={stripped}", "--video_backend=pyav",
+        f"--dataset.root={stripped}", "--dataset.video_backend=pyav",
     )  # fmt: skip
     seconds = time.perf_counter() - start
     true, labelled = actions_with_successor(truth), actions_with_successor(stripped)

@@ -44,7 +44,7 @@ def relabel_rate(checkpoint: Path, root: Path, processes: int, batch_size: int) 
     """Frames/s of the labelling pass as the CLI reports it (dry run)."""
     command = [
         f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}",
-        "--dry_run=true", "--video_backend=pyav", f"--batch_size={batch_size}",
+        "--dry_run=true", "--dataset.video_backend=pyav", f"--batch_size={batch_size}",
     ]  # fmt: skip
     if processes > 1:
         out = run("torchrun", f"--nproc_per_node={processes}", "--standalone", str(BIN / "lerobot-iupe-relabel"),

@@ -1,10 +1,17 @@
+import contextlib
+import io
 import json
 import os
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import pytest
+import torch
+from filelock import FileLock
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -23,16 +30,61 @@ def run_cli(name: str, *args: str, env: dict | None = None, check: bool = True) 
     return result
 
 
+def run_in_process(name: str, *args: str) -> subprocess.CompletedProcess:
+    """One of the package's commands (lerobot-iupe-*) run in this process: its installed console-script function
+    with these arguments, its exit code and output. For refusals and fixture data, where a new process would spend
+    ~5 s importing torch and LeRobot; the commands themselves run as processes elsewhere in the suite."""
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == name]
+    main = script.load()
+    out, err, threads, argv = io.StringIO(), io.StringIO(), torch.get_num_threads(), sys.argv
+    sys.argv = [name, *args]
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            main()
+        code = 0
+    except SystemExit as exit_:
+        code = exit_.code if isinstance(exit_.code, int) else int(exit_.code is not None)
+    finally:
+        sys.argv = argv
+        torch.set_num_threads(threads)  # lerobot-iupe-relabel sets its own
+    return subprocess.CompletedProcess([name, *args], code, out.getvalue(), err.getvalue())
+
+
 @pytest.fixture(scope="session")
-def data_dir(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("data")
+def shared_dir(tmp_path_factory) -> Path:
+    """One folder for the whole session, shared by pytest-xdist's workers (``make test`` runs two)."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@pytest.fixture(scope="session")
+def data_dir(shared_dir) -> Path:
+    path = shared_dir / "data"
+    path.mkdir(exist_ok=True)
+    return path
+
+
+def once(path: Path, make: Callable[[], object], done: str = "") -> Path:
+    """``make()`` creates ``path`` unless ``path / done`` exists; workers wanting the same ``path`` wait for the
+    first."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with FileLock(path.parent / f"{path.name}.fixture-lock"):
+        if not (path / done).exists():
+            make()
+    return path
 
 
 def collect(data_dir: Path, name: str, *args: str) -> Path:
     root = data_dir / name
-    if not root.exists():
-        run_cli("lerobot-iupe-collect", f"--dataset.repo_id=local/{name}", f"--dataset.root={root}", *args)
-    return root
+    return once(
+        root,
+        lambda: run_cli("lerobot-iupe-collect", f"--dataset.repo_id=local/{name}", f"--dataset.root={root}", *args),
+    )
+
+
+def train_once(out: Path, *args: str) -> Path:
+    """A lerobot-train run into ``out``, shared by every worker; its output directory."""
+    return once(out, lambda: (shutil.rmtree(out, ignore_errors=True), run_cli("lerobot-train", *args)), CHECKPOINT)
 
 
 @pytest.fixture(scope="session")
@@ -86,11 +138,11 @@ CHECKPOINT = "checkpoints/last/pretrained_model"
 
 
 @pytest.fixture(scope="session")
-def cartpole_run(cartpole_expert, cartpole_random, tmp_path_factory) -> Path:
+def cartpole_run(cartpole_expert, cartpole_random, shared_dir) -> Path:
     """A normal small IUPE training run on CartPole (200 steps); its output directory."""
-    out = tmp_path_factory.mktemp("runs") / "cartpole"
-    run_cli(
-        "lerobot-train",
+    out = shared_dir / "runs" / "cartpole"
+    return train_once(
+        out,
         *train_args(
             cartpole_expert,
             cartpole_random,
@@ -102,15 +154,14 @@ def cartpole_run(cartpole_expert, cartpole_random, tmp_path_factory) -> Path:
             "--policy.cycle_steps=50",
         ),
     )
-    return out
 
 
 @pytest.fixture(scope="session")
-def maze_run(maze_expert, maze_random, tmp_path_factory) -> Path:
+def maze_run(maze_expert, maze_random, shared_dir) -> Path:
     """A tiny Maze 3×3 run (4 steps): a real image checkpoint, not a trained one."""
-    out = tmp_path_factory.mktemp("runs") / "maze"
-    run_cli(
-        "lerobot-train",
+    out = shared_dir / "runs" / "maze"
+    return train_once(
+        out,
         *train_args(
             maze_expert,
             maze_random,
@@ -123,7 +174,6 @@ def maze_run(maze_expert, maze_random, tmp_path_factory) -> Path:
             "--policy.idm_epochs=1",
         ),
     )
-    return out
 
 
 def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:

@@ -3,7 +3,7 @@
 import dataclasses
 import json
 
-from conftest import CHECKPOINT, run_cli
+from conftest import CHECKPOINT, run_cli, run_in_process
 
 from lerobot_iupe.benchmark import PRESETS, Run, method_flags, read_training_run
 
@@ -54,7 +54,7 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
 
 def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):
     work, out = tmp_path / "work", tmp_path / "out"
-    result = run_cli("lerobot-iupe-benchmark", "--quick", "--jobs=0", f"--work={work}", f"--out={out}", check=False)
+    result = run_in_process("lerobot-iupe-benchmark", "--quick", "--jobs=0", f"--work={work}", f"--out={out}")
     assert result.returncode == 2
     assert "--jobs: must be 1 or more" in result.stderr
     assert not work.exists() and not out.exists()
@@ -63,7 +63,7 @@ def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):
 def test_from_a_folder_without_results_is_refused_and_nothing_is_written(tmp_path):
     work, out = tmp_path / "work", tmp_path / "out"
     args = ["--quick", f"--from={tmp_path}", f"--work={work}", f"--out={out}"]
-    result = run_cli("lerobot-iupe-benchmark", *args, check=False)
+    result = run_in_process("lerobot-iupe-benchmark", *args)
     assert result.returncode == 2 and "--from" in result.stderr and "results.json" in result.stderr
     assert not work.exists() and not out.exists()
 

@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 from conftest import collect as collect_fixture
-from conftest import run_cli
+from conftest import run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe import collect as collect_module
@@ -88,7 +88,7 @@ def test_keep_actions_stores_expert_actions(data_dir):
 )
 def test_bad_input_is_refused_and_writes_nothing(tmp_path, args, message):
     root = tmp_path / "ds"
-    result = run_cli("lerobot-iupe-collect", *args, "--dataset.repo_id=local/x", f"--dataset.root={root}", check=False)
+    result = run_in_process("lerobot-iupe-collect", *args, "--dataset.repo_id=local/x", f"--dataset.root={root}")
     assert result.returncode != 0
     assert message in result.stderr + result.stdout
     assert not root.exists() and list(tmp_path.iterdir()) == []

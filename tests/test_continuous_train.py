@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
-from conftest import CHECKPOINT, collect, evaluate, run_cli, train_args
+from conftest import CHECKPOINT, collect, evaluate, run_cli, train_args, train_once
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -32,12 +32,11 @@ def lunar_data(data_dir):
 
 
 @pytest.fixture(scope="session")
-def lunar_run(lunar_data, tmp_path_factory):
-    out = tmp_path_factory.mktemp("runs") / "lunar"
+def lunar_run(lunar_data, shared_dir):
+    out = shared_dir / "runs" / "lunar"
     flags = ["--steps=300", "--batch_size=64", "--save_freq=300", "--policy.cycle_steps=100"]
-    run_cli("lerobot-train", *train_args(lunar_data["expert"], lunar_data["random"], out, *flags,
-                                          "--policy.rollout_episodes=2"))  # fmt: skip
-    return out
+    return train_once(out, *train_args(lunar_data["expert"], lunar_data["random"], out, *flags,
+                                       "--policy.rollout_episodes=2"))  # fmt: skip
 
 
 def main_engine_agreement(predicted: np.ndarray, true: np.ndarray) -> float:

@@ -4,6 +4,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from lerobot.envs.factory import make_env
 
+from lerobot_iupe.collect import dataset_features
 from lerobot_iupe.envs import (
     HELDOUT_LAYOUT_START,
     AcrobotEnvConfig,
@@ -15,7 +16,6 @@ from lerobot_iupe.envs import (
 from lerobot_iupe.envs.configs import (
     LunarLanderEnvConfig,
     SO101PickPlaceEnvConfig,
-    env_config_from_command_line,
     env_config_from_settings,
     env_settings,
 )
@@ -173,7 +173,31 @@ def test_env_settings_rebuild_any_lerobot_env_type():
     assert ours.action_scale == 0.05 and ours.type == "so101_pickplace"
 
 
-def test_lerobot_train_env_flags_are_read():
-    cfg = env_config_from_command_line(["--policy.type=iupe", "--env.type=so101", "--env.episode_length=40"])
-    assert (cfg.type, cfg.episode_length) == ("so101", 40)
-    assert env_config_from_command_line(["--policy.type=iupe"]) is None
+@pytest.mark.parametrize("cfg", [c for c in CONFIGS if not c.is_image], ids=lambda c: f"{c.type}")
+def test_datasets_name_every_state_entry(cfg):
+    features = dataset_features(cfg, with_actions=True)
+    for key in ("observation.state", "observation.environment_state"):
+        if key in features:
+            names = features[key]["names"]
+            assert len(set(names)) == len(names) == features[key]["shape"][0]
+            assert all("." in name for name in names)  # LeRobot's "<part>.<quantity>", never a bare index
+
+
+def test_so101_state_names_say_what_each_entry_is():
+    cfg = SO101PickPlaceEnvConfig()
+    env = cfg.make()
+    obs, _ = env.reset(seed=3)
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0.5, -0.3, -0.4, 0.2], dtype=np.float32))
+    sim = env.unwrapped
+    state = dict(zip(cfg.state_names("agent_pos"), obs["agent_pos"], strict=True))
+    world = dict(zip(cfg.state_names("environment_state"), obs["environment_state"], strict=True))
+    for joint in ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll"):
+        assert state[f"{joint}.pos"] == pytest.approx(sim.data.joint(joint).qpos[0], abs=1e-6)
+        assert state[f"{joint}.vel"] == pytest.approx(sim.data.joint(joint).qvel[0], abs=1e-6)
+    ee, block = sim.data.sensor("so101/ee_pos").data, sim.data.sensor("block_pos").data
+    assert [state[f"ee.{a}"] for a in "xyz"] == pytest.approx(list(ee), abs=1e-6)
+    assert [world[f"block.{a}"] for a in "xyz"] == pytest.approx(list(block), abs=1e-6)
+    assert [world[f"goal.{a}"] for a in "xyz"] == pytest.approx(list(sim.goal_pos), abs=1e-6)
+    assert -1 <= state["gripper.pos"] <= 1
+    env.close()

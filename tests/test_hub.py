@@ -6,7 +6,7 @@ import sysconfig
 from pathlib import Path
 
 import pytest
-from conftest import run_cli
+from conftest import run_cli, run_in_process
 from hub_server import LocalHub
 from lerobot.datasets import LeRobotDataset
 
@@ -71,7 +71,7 @@ def test_collect_with_push_to_hub(tmp_path):
             "--env.type=acrobot",
             "--agent=random",
             "--episodes=1",
-            "--push_to_hub=true",
+            "--dataset.push_to_hub=true",
             "--dataset.repo_id=me/acrobot-random",
             f"--dataset.root={root}",
             env=hub_env(hub.url, tmp_path),
@@ -80,7 +80,7 @@ def test_collect_with_push_to_hub(tmp_path):
 
 
 def test_push_of_a_non_dataset_is_refused(tmp_path):
-    result = run_cli("lerobot-iupe-push", f"--dataset.root={tmp_path}", "--dataset.repo_id=me/x", check=False)
+    result = run_in_process("lerobot-iupe-push", f"--dataset.root={tmp_path}", "--dataset.repo_id=me/x")
     assert result.returncode == 2 and "is not a LeRobot dataset" in result.stderr
 
 

@@ -53,6 +53,14 @@ def non_policy_gradients(policy: IUPEPolicy) -> list[str]:
     return [name for name, p in policy.named_parameters() if id(p) not in optimised and p.grad is not None]
 
 
+def test_a_policy_built_from_python_never_reads_the_command_line(cartpole_expert, cartpole_random, monkeypatch):
+    # a notebook or another tool's CLI: its arguments are not lerobot-train's
+    monkeypatch.setattr("sys.argv", ["some-tool", "--env.type=acrobot", "--env.episode_length=7"])
+    assert build(cartpole_expert, cartpole_random).config.env_settings == read_iupe_meta(cartpole_expert)["env"]
+    given = {"type": "cartpole", "episode_length": 77}
+    assert build(cartpole_expert, cartpole_random, env_settings=given).config.env_settings == given
+
+
 def test_after_a_step_only_the_policy_model_carries_gradients(cartpole_expert, cartpole_random):
     policy = build(cartpole_expert, cartpole_random)
     loss, _ = policy.forward(frame_batch(cartpole_expert, 16))  # the first step trains the IDM on I_pre

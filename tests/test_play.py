@@ -2,7 +2,7 @@
 the arm to where the expert works."""
 
 import numpy as np
-from conftest import collect, run_cli
+from conftest import collect, run_in_process
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION
 
@@ -51,9 +51,9 @@ def test_collect_play_keeps_actions_and_is_refused_for_envs_without_a_play_agent
     )  # fmt: skip
     dataset = LeRobotDataset("local/so101-play", root=root)
     assert dataset.meta.features[ACTION]["shape"] == (4,) and dataset.num_episodes == 2
-    refused = run_cli(
+    refused = run_in_process(
         "lerobot-iupe-collect", "--env.type=cartpole", "--agent=play", "--episodes=1",
-        "--dataset.repo_id=local/cartpole-play", f"--dataset.root={data_dir / 'cartpole-play'}", check=False,
+        "--dataset.repo_id=local/cartpole-play", f"--dataset.root={data_dir / 'cartpole-play'}",
     )  # fmt: skip
     assert refused.returncode != 0 and "--agent=play" in refused.stderr + refused.stdout
     assert not (data_dir / "cartpole-play").exists()

@@ -3,6 +3,7 @@
 import errno
 import hashlib
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -10,16 +11,18 @@ import time
 
 import numpy as np
 import pytest
-from conftest import CHECKPOINT, evaluate, run_cli, train_args
+from conftest import BIN, CHECKPOINT, collect, evaluate, run_cli, run_in_process, train_args
 from hub_server import LocalHub
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
 from test_hub import hub_env
 
-from lerobot_iupe import relabel as relabel_module
+from lerobot_iupe.collect import dataset_features
 from lerobot_iupe.data.readers import stored_frames
-from lerobot_iupe.data.storage import DatasetTarget, read_iupe_meta, write_iupe_meta
-from lerobot_iupe.relabel import CheckpointRef, RelabelConfig, relabel
+from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
+from lerobot_iupe.envs.configs import CartPoleEnvConfig
+from lerobot_iupe.relabel import CheckpointRef, RelabelConfig, RelabelDataset, relabel
+from lerobot_iupe.relabel import run as relabel_run
 
 
 def tree_digest(root) -> dict:
@@ -33,17 +36,8 @@ def hidden_siblings(root) -> list:
 
 def labelled_and_stripped(data_dir, name: str, *collect_args: str):
     """An expert dataset collected with its true actions, and a copy with the actions removed by LeRobot."""
-    labelled = data_dir / f"{name}-true"
-    if not labelled.exists():
-        run_cli(
-            "lerobot-iupe-collect",
-            *collect_args,
-            "--agent=expert",
-            "--keep_actions=true",
-            f"--dataset.repo_id=local/{name}-true",
-            f"--dataset.root={labelled}",
-        )
-    stripped = data_dir / f"{name}-{time.monotonic_ns()}"
+    labelled = collect(data_dir, f"{name}-true", *collect_args, "--agent=expert", "--keep_actions=true")
+    stripped = data_dir / f"{name}-{os.getpid()}-{time.monotonic_ns()}"
     source = LeRobotDataset(f"local/{name}-true", root=labelled, video_backend="pyav")
     remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
     write_iupe_meta(stripped, {**read_iupe_meta(labelled), "has_actions": False})  # LeRobot copies only its files
@@ -99,9 +93,9 @@ def test_bc_on_a_relabelled_cartpole_dataset_reaches_475(cartpole_run, cartpole_
 def test_existing_actions_are_refused_without_overwrite_and_compared_in_dry_run(cartpole_run, data_dir):
     labelled, _ = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
     before = tree_digest(labelled)
-    refused = run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, labelled), check=False)
+    refused = run_in_process("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, labelled))
     assert refused.returncode == 2 and "--overwrite=true" in refused.stderr
-    dry = run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, labelled, "--dry_run=true"))
+    dry = run_in_process("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, labelled, "--dry_run=true"))
     assert "nothing written" in dry.stdout and "agreement with the dataset's existing actions" in dry.stdout
     assert tree_digest(labelled) == before
 
@@ -122,6 +116,8 @@ def test_overwrite_replaces_existing_actions(cartpole_run, data_dir, tmp_path):
         ("image_dataset", "the checkpoint --policy.path reads 'observation.state'"),
         ("other_state_size", "has shape (6,) in the dataset"),
         ("not_a_checkpoint", "holds no config.json"),
+        ("missing_checkpoint", "/no-such-run/pretrained_model does not exist"),
+        ("empty_dataset", "holds no episodes"),
         ("bad_mode", "--mode=greedy"),
         ("bad_threads", "--num_threads must be at least 1"),
     ],
@@ -131,31 +127,66 @@ def test_mismatches_are_clear_errors_and_write_nothing(case, message, cartpole_r
     if case == "image_dataset":
         dataset = maze_expert
     elif case == "other_state_size":
-        dataset = tmp_path / "acrobot"
-        run_cli(
-            "lerobot-iupe-collect",
-            "--env.type=acrobot",
-            "--agent=expert",
-            "--episodes=1",
-            "--dataset.repo_id=local/acrobot",
-            f"--dataset.root={dataset}",
-        )
+        dataset = collect(tmp_path, "acrobot", "--env.type=acrobot", "--agent=expert", "--episodes=1")
     elif case == "not_a_checkpoint":
         checkpoint = tmp_path
+    elif case == "missing_checkpoint":
+        checkpoint = tmp_path / "no-such-run" / "pretrained_model"
+    elif case == "empty_dataset":  # created and finalised with no episodes
+        dataset = tmp_path / "empty"
+        features = dataset_features(CartPoleEnvConfig(), with_actions=False)
+        LeRobotDataset.create("local/empty", fps=50, features=features, root=dataset).finalize()
     elif case == "bad_mode":
         extra = ["--mode=greedy"]
     elif case == "bad_threads":
         extra = ["--num_threads=0"]
     before = tree_digest(dataset)
-    result = run_cli("lerobot-iupe-relabel", *relabel_args(checkpoint, dataset, *extra), check=False)
-    assert result.returncode == 2 and message in result.stderr, result.stderr[-2000:]
+    result = run_in_process("lerobot-iupe-relabel", *relabel_args(checkpoint, dataset, *extra))
+    assert result.returncode == 2 and one_error_line(result).count(message) == 1, result.stderr[-2000:]
     assert tree_digest(dataset) == before and hidden_siblings(dataset) == []
+
+
+def one_error_line(result) -> str:
+    """The command's error: one line, no traceback."""
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    return result.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.skipif(subprocess.run(["unshare", "-rm", "true"]).returncode != 0, reason="no user namespaces")
+def test_a_read_only_parent_folder_is_refused_before_any_labelling(cartpole_run, data_dir, tmp_path):
+    # a real read-only mount (root ignores file modes): the dataset's folder is bind-mounted read-only
+    _, stripped = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    root = folder / "demos"
+    subprocess.run(["cp", "-r", str(stripped), str(root)], check=True)
+    before = tree_digest(root)
+    command = [str(BIN / "lerobot-iupe-relabel"), *relabel_args(cartpole_run / CHECKPOINT, root)]
+    script = f'mount --bind -o ro "{folder}" "{folder}" && exec "$@"'
+    result = subprocess.run(["unshare", "-rm", "sh", "-c", script, "sh", *command], capture_output=True, text=True)
+    assert result.returncode == 2 and "Read-only file system" in one_error_line(result), result.stderr[-2000:]
+    assert f"cannot write in its folder {folder}" in one_error_line(result)
+    assert "relabel:" not in result.stderr  # no progress bar: refused before labelling
+    assert tree_digest(root) == before and sorted(p.name for p in folder.iterdir()) == ["demos"]
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ("--device=cpu", "--policy.device"),
+        ("--video_backend=pyav", "--dataset.video_backend"),
+        ("--push_to_hub=true", "--dataset.push_to_hub"),
+    ],
+)
+def test_the_old_flag_names_point_to_lerobots(old, new, cartpole_run, cartpole_expert):
+    result = run_in_process("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, cartpole_expert, old))
+    assert result.returncode == 2 and f"is now {new}" in one_error_line(result)
 
 
 def test_video_dataset_is_relabelled_in_streaming_batches(maze_run, data_dir):
     _, stripped = labelled_and_stripped(data_dir, "maze3-relabel", "--env.type=maze", "--env.size=3", "--episodes=3")
     videos_before = {k: v for k, v in tree_digest(stripped).items() if k.startswith("videos/")}
-    args = relabel_args(maze_run / CHECKPOINT, stripped, "--video_backend=pyav", "--batch_size=4")
+    args = relabel_args(maze_run / CHECKPOINT, stripped, "--dataset.video_backend=pyav", "--batch_size=4")
     dry_a = run_cli("lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true").stdout
     dry_b = run_cli("lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true").stdout
     shares = [[line for line in out.splitlines() if line.startswith("  actions")] for out in (dry_a, dry_b)]
@@ -188,10 +219,10 @@ def test_a_failure_while_writing_keeps_the_original(cartpole_run, data_dir, monk
         (staged / "data" / "filler.bin").write_bytes(b"0" * 1024)
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(relabel_module, "write_labels", disk_full)
+    monkeypatch.setattr(relabel_run, "write_labels", disk_full)
     cfg = RelabelConfig(
         policy=CheckpointRef(str(cartpole_run / CHECKPOINT)),
-        dataset=DatasetTarget(repo_id=f"local/{stripped.name}", root=str(stripped)),
+        dataset=RelabelDataset(repo_id=f"local/{stripped.name}", root=str(stripped)),
     )
     with pytest.raises(OSError, match="No space left"):
         relabel(cfg)
@@ -204,7 +235,7 @@ def test_kill_9_after_the_copy_is_written_loses_nothing(maze_run, maze_random, d
     root = tmp_path / "maze-random"
     subprocess.run(["cp", "-r", str(maze_random), str(root)], check=True)
     before = tree_digest(root)
-    args = relabel_args(maze_run / CHECKPOINT, root, "--overwrite=true", "--video_backend=pyav")
+    args = relabel_args(maze_run / CHECKPOINT, root, "--overwrite=true", "--dataset.video_backend=pyav")
     code = (
         "import os, signal, sys; from lerobot_iupe.data import storage as dataset_utils;"
         "dataset_utils.exchange_paths = lambda *a: os.kill(os.getpid(), signal.SIGKILL);"
@@ -212,7 +243,7 @@ def test_kill_9_after_the_copy_is_written_loses_nothing(maze_run, maze_random, d
     )
     process = subprocess.run([sys.executable, "-c", code, "relabel", *args], capture_output=True, text=True)
     assert process.returncode == -signal.SIGKILL, process.stderr[-3000:]
-    staged = hidden_siblings(root)
+    staged = [name for name in hidden_siblings(root) if ".partial-" in name]
     assert len(staged) == 1
     assert "relabelled_by" in read_iupe_meta(root.parent / staged[0])  # the copy was complete
     assert tree_digest(root) == before
@@ -230,7 +261,7 @@ def test_hub_dataset_is_pulled_relabelled_and_pushed_with_its_card(cartpole_run,
             "lerobot-iupe-relabel",
             f"--policy.path={cartpole_run / CHECKPOINT}",
             "--dataset.repo_id=me/demos",
-            "--push_to_hub=true",
+            "--dataset.push_to_hub=true",
             env=env,
         )
         assert (tmp_path / "lerobot" / "me" / "demos" / "meta" / "iupe.json").exists()  # the pulled local copy
@@ -240,3 +271,34 @@ def test_hub_dataset_is_pulled_relabelled_and_pushed_with_its_card(cartpole_run,
         assert "labelled by an inverse" in card and "lerobot-iupe-relabel" in card
         info = json.loads(files["meta/info.json"])
         assert info["features"]["action"]["info"]["labelled_by"] == str(cartpole_run / CHECKPOINT)
+
+
+def test_one_writer_per_dataset_a_second_relabel_or_collect_stops_at_once(cartpole_run, data_dir, tmp_path):
+    _, root = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
+    args = relabel_args(cartpole_run / CHECKPOINT, root)
+    # the first writer: the real command, held once its labels are computed until this test lets it write
+    code = (
+        "import sys; from lerobot_iupe.relabel import run;"
+        "write = run.write_labels;"
+        "run.write_labels = lambda *a: (print('writing', flush=True), sys.stdin.readline(), write(*a));"
+        "from lerobot_iupe.cli.relabel import main; sys.argv[1:] = sys.argv[2:]; main()"
+    )
+    first = subprocess.Popen(
+        [sys.executable, "-c", code, "relabel", *args], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert any(line.strip() == "writing" for line in first.stdout)  # (LeRobot prints its own lines first)
+        before = tree_digest(root)
+        second = run_cli("lerobot-iupe-relabel", *args, check=False)
+        assert second.returncode == 2
+        assert f"being written by another process (PID {first.pid})" in one_error_line(second)
+        collect = run_cli(
+            "lerobot-iupe-collect", "--env.type=cartpole", "--episodes=1", "--overwrite=true",
+            f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", check=False,
+        )  # fmt: skip
+        assert collect.returncode == 2 and f"(PID {first.pid})" in one_error_line(collect)
+        assert tree_digest(root) == before
+    finally:
+        first.communicate("go\n", timeout=300)
+    assert first.returncode == 0
+    assert "relabelled_by" in read_iupe_meta(root) and hidden_siblings(root) == []  # the first writer finished

@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import BIN, CHECKPOINT, run_cli
+from conftest import BIN, CHECKPOINT, run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
@@ -19,6 +19,9 @@ from lerobot_iupe.policy.algorithm import r_squared
 
 CAMERAS = ("observation.images.top", "observation.images.side")
 ACTION_NAMES = ["force_x", "force_y"]
+
+
+pytestmark = pytest.mark.xdist_group("relabel_any")  # one worker: the module's fixtures are built once
 
 
 def write_point_mass(
@@ -88,11 +91,13 @@ def train_idm(dataset, out, *flags: str, steps: int = 300):
 def relabel(checkpoint, dataset, *flags: str, check: bool = True, launcher: tuple[str, ...] = ()):
     args = [
         f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
-        "--video_backend=pyav", *flags,
+        "--dataset.video_backend=pyav", *flags,
     ]  # fmt: skip
     if launcher:
         return run_cli(*launcher, str(BIN / "lerobot-iupe-relabel"), *args, check=check)
-    return run_cli("lerobot-iupe-relabel", *args, check=check)
+    result = run_in_process("lerobot-iupe-relabel", *args)
+    assert result.returncode == 0 or not check, result.stderr[-3000:]
+    return result
 
 
 def inner(actions: np.ndarray, dataset) -> np.ndarray:

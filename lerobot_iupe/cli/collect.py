@@ -25,7 +25,7 @@ def collect_main(cfg: CollectConfig) -> None:
         f"wrote {meta['episodes']} {cfg.agent} episodes of {cfg.env.type} to {root} in {meta['seconds']:.1f}s: "
         f"mean return {meta['mean_return']:.2f} ± {meta['std_return']:.2f}, success {meta['success_rate']:.0%}"
     )
-    if cfg.push_to_hub:
+    if cfg.dataset.push_to_hub:
         from lerobot_iupe.hub import push_dataset
 
         url = push_dataset(root, cfg.dataset.repo_id, private=cfg.dataset.private)
@@ -33,7 +33,7 @@ def collect_main(cfg: CollectConfig) -> None:
 
 
 def main() -> None:
-    run_cli(collect_main)
+    run_cli(collect_main, renamed={"--push_to_hub": "--dataset.push_to_hub"})
 
 
 if __name__ == "__main__":

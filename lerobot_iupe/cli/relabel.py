@@ -5,7 +5,7 @@ Examples:
     lerobot-iupe-relabel --policy.path=outputs/iupe/checkpoints/last/pretrained_model \
         --dataset.repo_id=local/cartpole-expert --dataset.root=data/cartpole-expert
     lerobot-iupe-relabel --policy.path=... --dataset.repo_id=me/maze5-videos --dry_run=true
-    lerobot-iupe-relabel --policy.path=... --dataset.repo_id=me/maze5-videos --push_to_hub=true
+    lerobot-iupe-relabel --policy.path=... --dataset.repo_id=me/maze5-videos --dataset.push_to_hub=true
 The checkpoint may come from a full IUPE run or from `lerobot-train --policy.type=iupe --policy.supervised=true` on
 any labelled dataset of the same robot; the dataset may be any LeRobot v3 dataset with the observations the IDM
 reads (checked: keys, shapes, fps, action names). Several processes split the episodes and write the same bytes:
@@ -19,6 +19,7 @@ from lerobot.configs import parser
 
 from lerobot_iupe.cli import run_cli
 from lerobot_iupe.relabel import RelabelConfig, relabel
+from lerobot_iupe.relabel.config import RENAMED_FLAGS
 
 
 @parser.wrap()
@@ -29,7 +30,7 @@ def relabel_main(cfg: RelabelConfig) -> None:
     print(report.summary())
     if report.written:
         print(f"relabelled dataset at {report.root}")
-    if cfg.push_to_hub:
+    if cfg.dataset.push_to_hub:
         from lerobot_iupe.hub import push_dataset
 
         url = push_dataset(report.root, cfg.dataset.repo_id, private=cfg.dataset.private)
@@ -37,7 +38,7 @@ def relabel_main(cfg: RelabelConfig) -> None:
 
 
 def main() -> None:
-    run_cli(relabel_main)
+    run_cli(relabel_main, renamed=RENAMED_FLAGS)
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ctypes
 import errno
+import fcntl
 import json
 import os
 import shutil
@@ -17,6 +18,8 @@ from pathlib import Path
 
 from lerobot.utils.constants import HF_LEROBOT_HOME
 
+from lerobot_iupe.errors import CommandError
+
 
 @dataclass
 class DatasetTarget:
@@ -26,6 +29,14 @@ class DatasetTarget:
     # Local directory of the dataset; defaults to $HF_LEROBOT_HOME/<repo_id>.
     root: str | None = None
     private: bool = False
+
+
+@dataclass
+class WrittenDataset(DatasetTarget):
+    """``--dataset.*`` of a command that writes a dataset (collect, relabel)."""
+
+    # Push the finished dataset and its card to the hub as --dataset.repo_id (HF_ENDPOINT, your token).
+    push_to_hub: bool = False
 
 
 def is_dataset(root: str | Path) -> bool:
@@ -137,3 +148,48 @@ def recover_interrupted_swap(final: Path) -> None:
             os.rename(path, final)
         else:
             shutil.rmtree(path, ignore_errors=True)
+
+
+@contextmanager
+def dataset_lock(root: Path) -> Iterator[None]:
+    """Hold the one-writer lock of the dataset at ``root`` for the whole block; a second writer stops at once with
+    the holder's PID. The lock file sits beside the root (``.<name>.lock``; the root itself is swapped out when a
+    write completes) and is removed on release. It also checks first that the root's folder takes new files, as
+    every write here builds the new dataset beside the old one.
+
+    Written on ``fcntl.flock`` directly: ``filelock`` truncates the file on every try, erasing the holder's PID."""
+    root = Path(root).absolute()
+    path = root.parent / f".{root.name}.lock"
+    while True:
+        try:
+            root.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as error:
+            raise CommandError(
+                f"--dataset.root={root}: cannot write in its folder {root.parent} ({error.strerror}); the dataset "
+                "is written beside itself and swapped in, so that folder must be writable (or copy the dataset to "
+                "one that is)"
+            ) from error
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise CommandError(
+                f"--dataset.root={root} is being written by another process (PID {holder}); wait for it to finish "
+                f"or stop it (lock file {path})"
+            ) from None
+        try:  # the holder before us may have removed the file while we waited on its old inode: lock the new one
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.unlink(path)  # while still held, so that no other process can lock this inode and then see it gone
+        os.close(fd)

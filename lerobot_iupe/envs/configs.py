@@ -5,14 +5,12 @@ of any LeRobot env config (``env_observation_keys``, ``env_settings``, ``make_en
 from __future__ import annotations
 
 import dataclasses
-import sys
 from dataclasses import dataclass, field
+from typing import ClassVar
 
-import draccus
 import gymnasium as gym
 import numpy as np
 from lerobot.configs import FeatureType, PolicyFeature
-from lerobot.configs.parser import get_cli_overrides, get_type_arg
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
@@ -20,6 +18,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
 from lerobot_iupe.envs.maze import HELDOUT_LAYOUT_START, default_max_steps
 
 GYM_NAMESPACE = "lerobot_iupe"
+SO101_ARM_JOINTS = ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll")
 
 
 @dataclass
@@ -28,6 +27,12 @@ class IUPEEnvConfig(EnvConfig):
     continuous ``Box`` action, whose shape is ``features["action"]``)."""
 
     n_actions: int = 0
+    # What each entry of a vector observation is, by env key, in LeRobot's "<joint>.pos" style: the names datasets
+    # give their features, so that LeRobot's tools and third-party checkers can read them.
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {}
+
+    def state_names(self, env_key: str) -> list[str]:
+        return list(self.STATE_NAMES[env_key])
 
     @property
     def package_name(self) -> str:
@@ -89,6 +94,7 @@ class ClassicEnvConfig(IUPEEnvConfig):
 @dataclass
 class CartPoleEnvConfig(ClassicEnvConfig):
     task: str | None = "CartPole-v1"
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {"agent_pos": ("cart.pos", "cart.vel", "pole.pos", "pole.vel")}
     fps: int = 50
     n_actions: int = 2
     features: dict[str, PolicyFeature] = field(default_factory=lambda: _vector_features(4))
@@ -99,6 +105,9 @@ class CartPoleEnvConfig(ClassicEnvConfig):
 @dataclass
 class AcrobotEnvConfig(ClassicEnvConfig):
     task: str | None = "Acrobot-v1"
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {
+        "agent_pos": ("joint1.cos", "joint1.sin", "joint2.cos", "joint2.sin", "joint1.vel", "joint2.vel")
+    }
     fps: int = 15
     n_actions: int = 3
     features: dict[str, PolicyFeature] = field(default_factory=lambda: _vector_features(6))
@@ -109,6 +118,7 @@ class AcrobotEnvConfig(ClassicEnvConfig):
 @dataclass
 class MountainCarEnvConfig(ClassicEnvConfig):
     task: str | None = "MountainCar-v0"
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {"agent_pos": ("car.pos", "car.vel")}
     fps: int = 30
     n_actions: int = 3
     episode_length: int = 200
@@ -179,6 +189,10 @@ class LunarLanderEnvConfig(ClassicEnvConfig):
     ``envs/lunar.py`` for why, and for the safe-landing success rule)."""
 
     task: str | None = "LunarLanderContinuous-v3"
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {
+        "agent_pos": ("lander.x", "lander.y", "lander.vel_x", "lander.vel_y", "lander.angle", "lander.angular_vel"),
+        "environment_state": ("left_leg.contact", "right_leg.contact"),
+    }
     fps: int = 50
     episode_length: int = 1000
     features: dict[str, PolicyFeature] = field(
@@ -202,6 +216,19 @@ class SO101PickPlaceEnvConfig(ClassicEnvConfig):
     ``environment_state`` (block and goal positions, 6) → ``observation.environment_state``."""
 
     task: str | None = "SO101PickPlace-v0"
+    # The plugin's robot state: its five arm joints' positions and velocities, the gripper's commanded opening
+    # (-1 closed … 1 open), the end effector's position; then the block's and the goal's positions.
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {
+        "agent_pos": (
+            *(f"{joint}.pos" for joint in SO101_ARM_JOINTS),
+            *(f"{joint}.vel" for joint in SO101_ARM_JOINTS),
+            "gripper.pos",
+            "ee.x",
+            "ee.y",
+            "ee.z",
+        ),  # fmt: skip
+        "environment_state": ("block.x", "block.y", "block.z", "goal.x", "goal.y", "goal.z"),
+    }
     fps: int = 10
     # The plugin's own cap: cloned policies are slower than the scripted expert (47 steps on average) and lost
     # about 0.1 success at a 100-step cap.
@@ -262,17 +289,6 @@ def env_config_from_settings(settings: dict) -> EnvConfig:
     """The env config a dataset's ``meta/iupe.json`` records (``env_settings``, the other way)."""
     fields = {k: v for k, v in settings.items() if k != "type"}
     return EnvConfig.get_choice_class(settings["type"])(**fields)
-
-
-def env_config_from_command_line(args: list[str] | None = None) -> EnvConfig | None:
-    """The env of ``lerobot-train``'s own ``--env.type=… --env.<field>=…`` flags, or None. LeRobot builds the
-    policy from the dataset alone (``make_policy(ds_meta=…)``), so the policy reads the flags it was given."""
-    args = sys.argv[1:] if args is None else args
-    env_type = get_type_arg("env", args)
-    if env_type is None:
-        return None
-    overrides = [a for a in get_cli_overrides("env", args) or [] if not a.startswith("--discover_packages_path")]
-    return draccus.parse(EnvConfig.get_choice_class(env_type), args=overrides)
 
 
 def env_settings(env_cfg: EnvConfig) -> dict:

@@ -15,10 +15,10 @@ from lerobot_iupe.envs.configs import (
     IUPEEnvConfig,
     action_names,
     action_space_of,
-    env_config_from_command_line,
     env_config_from_settings,
     env_settings,
 )
+from lerobot_iupe.policy.train_run import lerobot_train_config
 
 EVAL_MODES = ("argmax", "sample")
 IMAGE_BACKBONES = ("cnn", "resnet18")
@@ -73,8 +73,9 @@ class IUPEConfig(PreTrainedConfig):
     # actions show in its own state: an SO-101 IDM trained on play that also read the block and goal labelled the
     # expert with R² < 0 on two dimensions (it never saw a carried block move), on observation.state alone ≥ 0.93.
     idm_observation_keys: list[str] | None = None
-    # Environment of the rollouts, as {type: …, <env config fields>}; None = lerobot-train's --env.* when given,
-    # else the one recorded in the expert dataset's meta/iupe.json.
+    # Environment of the rollouts, as {type: …, <env config fields>}. lerobot-train's --env.* win when given (also
+    # over the env a --policy.path checkpoint recorded); else this; else the expert dataset's meta/iupe.json. From
+    # Python, set it here: the policy never reads the process's command line.
     env_settings: dict | None = None
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
@@ -227,9 +228,10 @@ class IUPEConfig(PreTrainedConfig):
         self.idm_batch_size = self.idm_batch_size or (64 if self.is_image else 256)
 
     def resolve_dataset(self, dataset_meta) -> None:
-        """Fill what the training run tells (the rollout env: ``--policy.env_settings``, else lerobot-train's
-        ``--env.*``, else the expert dataset's ``meta/iupe.json``; the action space from that env, or, supervised
-        and without an env, from the dataset's own ``action`` feature) and refuse what it cannot train.
+        """Fill what the training run tells (the rollout env: lerobot-train's ``--env.*``, else
+        ``--policy.env_settings``, else the expert dataset's ``meta/iupe.json``; the action space from that env,
+        or, supervised and without an env, from the dataset's own ``action`` feature) and refuse what it cannot
+        train.
         ``dataset_meta`` is None when a checkpoint is loaded for evaluation: its config holds all of it."""
         if dataset_meta is not None:
             self.fps = self.fps or int(dataset_meta.fps)
@@ -240,11 +242,11 @@ class IUPEConfig(PreTrainedConfig):
                     f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
                     "(collect it with --keep_actions=true)"
                 )
-        if dataset_meta is not None and self.env_settings is None:
-            env_cfg = env_config_from_command_line()
-            if env_cfg is not None:
-                self.env_settings = env_settings(env_cfg)
-            else:
+        if dataset_meta is not None:
+            train_cfg = lerobot_train_config()
+            if train_cfg is not None and train_cfg.env is not None:  # the flags given now beat a checkpoint's env
+                self.env_settings = env_settings(train_cfg.env)
+            elif self.env_settings is None:
                 self.env_settings = read_iupe_meta(Path(dataset_meta.root)).get("env")
         if self.n_actions == 0 and not self.is_continuous:
             if self.env_settings is None and dataset_meta is not None and self.supervised:

@@ -4,7 +4,8 @@ is ``training.py``, the networks ``networks.py``.
 
 The checkpoint LeRobot saves holds the *selected* model (best rollout success, latest on ties) as its weights, and
 beside them what the algorithm needs to go on exactly where it stopped (``training.TrainingState``). Training from
-such a checkpoint (``--resume=true`` or ``--policy.path``) continues from that state.
+such a checkpoint with ``--resume=true`` continues from that state; ``--policy.path`` alone starts a new run
+from its weights (``train_run``).
 """
 
 from __future__ import annotations

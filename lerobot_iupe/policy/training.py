@@ -35,6 +35,7 @@ from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys, make_envs
 from lerobot_iupe.envs.rollout import run_episodes
 from lerobot_iupe.policy.algorithm import ActionCells, build_sampled_set, r_squared, success_action_distribution
+from lerobot_iupe.policy.train_run import resuming
 
 if TYPE_CHECKING:
     from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
@@ -93,6 +94,9 @@ class IUPETrainer:
 
     def __init__(self, policy: IUPEPolicy, dataset_meta: LeRobotDatasetMetadata, seed: int):
         self.policy, self.config, self.dataset_meta, self.seed = policy, policy.config, dataset_meta, seed
+        # --resume=true continues the saved cycle state exactly; --policy.path alone starts a new run from the
+        # checkpoint's weights (LeRobot's fine-tuning).
+        self.resume = resuming()
         self.state: TrainingState | None = None
         self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
         self.selected_weights: dict[str, Tensor] | None = None  # best rollout success so far (latest on ties)
@@ -182,7 +186,7 @@ class IUPETrainer:
         if state.torch_rng.device != self.device:
             state.torch_rng = None
         log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self.env_cfg.type}")
-        saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path else None
+        saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path and self.resume else None
         if saved is not None and saved.exists():
             self.restore(torch.load(saved, map_location=self.device, weights_only=True))
             log.info(f"IUPE: continuing from cycle {state.cycle} (step {state.step}) of {saved.parent}")

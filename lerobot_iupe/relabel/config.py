@@ -1,0 +1,119 @@
+"""``lerobot-iupe-relabel``'s flags (LeRobot's names: ``--policy.*``, ``--dataset.*``) and its report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lerobot_iupe.data.storage import WrittenDataset
+
+MODES = ("argmax", "sample")
+
+
+@dataclass
+class CheckpointRef:
+    # A trained IUPE checkpoint: .../checkpoints/<step>/pretrained_model, or a hub model id (as for lerobot-eval).
+    path: str | None = None
+    # Where the IDM runs: cpu (the default: the same labels on every machine), cuda, mps.
+    device: str = "cpu"
+
+
+@dataclass
+class RelabelDataset(WrittenDataset):
+    # Video decoder: "pyav" or "torchcodec"; default: torchcodec where it loads, else pyav (LeRobot's rule).
+    video_backend: str | None = None
+
+
+# Flags that were top-level before they took LeRobot's names.
+RENAMED_FLAGS = {
+    "--device": "--policy.device",
+    "--video_backend": "--dataset.video_backend",
+    "--push_to_hub": "--dataset.push_to_hub",
+}
+
+
+@dataclass
+class RelabelConfig:
+    policy: CheckpointRef = field(default_factory=CheckpointRef)
+    dataset: RelabelDataset = field(default_factory=RelabelDataset)
+    # argmax: the IDM's most likely action (a Gaussian's mean); sample: one draw per frame (seeded by --seed and
+    # the episode, so it does not depend on the number of processes).
+    mode: str = "argmax"
+    seed: int = 0
+    # Frames per IDM batch; frames are read (video decoded) in spans of this size, so memory follows the batch,
+    # not the dataset.
+    batch_size: int = 512
+    # CPU threads of the IDM per process. Torch's sums differ in the last bit between thread counts, so a fixed
+    # count keeps the labels the same whatever the number of processes; scale out with torchrun (one process per
+    # core) rather than threads.
+    num_threads: int = 1
+    # Replace an `action` feature the dataset already has.
+    overwrite: bool = False
+    # Label and report statistics, write nothing.
+    dry_run: bool = False
+
+    def validate(self) -> None:
+        if not self.policy.path:
+            raise ValueError("--policy.path is required: a trained IUPE checkpoint (.../pretrained_model)")
+        if self.mode not in MODES:
+            raise ValueError(f"--mode={self.mode} is not known; use one of {list(MODES)}")
+        if self.num_threads < 1:
+            raise ValueError(f"--num_threads must be at least 1, got {self.num_threads}")
+        if self.batch_size < 1:
+            raise ValueError(f"--batch_size must be at least 1, got {self.batch_size}")
+        if self.dataset.video_backend not in (None, "pyav", "torchcodec"):
+            raise ValueError(
+                f"--dataset.video_backend={self.dataset.video_backend} is not known; use pyav or torchcodec"
+            )
+        if self.dry_run and self.dataset.push_to_hub:
+            raise ValueError("--dry_run=true writes nothing, so --dataset.push_to_hub=true has nothing to push")
+
+
+@dataclass
+class RelabelReport:
+    root: Path
+    checkpoint: str
+    mode: str
+    frames: int
+    episodes: int
+    action_names: list[str]
+    # Discrete: frames per action id. Continuous: the labels' mean per dimension.
+    action_summary: list[float]
+    # Discrete: the IDM's mean probability of its label. Continuous: its mean predicted standard deviation, in
+    # units of the action range (0 = certain).
+    mean_confidence: float
+    # Against the action the dataset already had (frames with a successor): the share of equal labels (discrete)
+    # or R² (continuous).
+    agreement_with_existing: float | None
+    seconds: float
+    processes: int = 1
+    written: bool = False
+    # Under torchrun only process 0 gathers, writes and reports; the others return a report with this False.
+    first_process: bool = True
+    continuous: bool = False
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.frames / max(self.seconds, 1e-9)
+
+    def summary(self) -> str:
+        if self.continuous:
+            means = zip(self.action_names, self.action_summary, strict=True)
+            labels = "mean label " + ", ".join(f"{n}={v:.3f}" for n, v in means)
+            labels += f"; mean IDM std {self.mean_confidence:.3f} of the action range"
+            agreement = "R² against"
+        else:
+            total = max(sum(self.action_summary), 1)
+            labels = "actions " + ", ".join(f"{a}: {c / total:.1%}" for a, c in enumerate(self.action_summary))
+            labels += f"; mean IDM confidence {self.mean_confidence:.3f}"
+            agreement = "agreement with"
+        processes = f" on {self.processes} processes" if self.processes > 1 else ""
+        lines = [
+            f"{'wrote' if self.written else 'dry run, nothing written:'} {self.frames} frames of {self.episodes} "
+            f"episodes labelled ({self.mode}) in {self.seconds:.1f}s{processes} "
+            f"({self.frames_per_second:.0f} frames/s)",
+            f"  {labels}",
+        ]
+        if self.agreement_with_existing is not None:
+            lines.append(f"  {agreement} the dataset's existing actions: {self.agreement_with_existing:.4f}")
+        return "\n".join(lines)

@@ -1,0 +1,111 @@
+"""The IDM's labels of every frame with a successor, span by span, on one process or split among several
+(``torchrun``): the labels of an episode do not depend on which process labels it."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from lerobot.datasets import LeRobotDatasetMetadata
+from tqdm.auto import tqdm
+
+from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, prefetched, window_indices
+from lerobot_iupe.policy import IUPEPolicy
+
+LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
+
+
+def episode_generator(seed: int, episode: int) -> torch.Generator:
+    """The draws of one episode (``--mode=sample``): the same whichever process labels it."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + episode)
+
+
+@torch.no_grad()
+def label_spans_with_idm(
+    policy: IUPEPolicy,
+    reader: FrameReader,
+    spans: list[LabelSpan],
+    mode: str,
+    seed: int,
+    device: str = "cpu",
+    progress: bool = True,
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Labels (int64 ids, or float32 vectors) and confidences of the frames of ``spans``, by episode; each
+    episode's last frame follows ``LAST_FRAME_RULE``. Reading runs ahead in a background thread."""
+    config, head = policy.config, policy.idm_head
+    offsets = config.idm_window
+    results: dict[int, tuple[list, list]] = {}
+    generators: dict[int, torch.Generator] = {}
+
+    def read(span_list):
+        for span in span_list:
+            yield span, reader.frames(span.episode, span.first, span.lo, span.hi)
+
+    total = sum(span.stop - span.start for span in spans)
+    with tqdm(total=total, desc="relabel", unit="frame", unit_scale=True, disable=not progress) as bar:
+        for span, frames in prefetched(read(spans)):
+            t = np.arange(span.start, span.stop)
+            index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
+            window = frames.to(device)[torch.as_tensor(index, device=device)]
+            output = policy.idm_window_output(window).float().cpu()
+            generator = generators.setdefault(span.episode, episode_generator(seed, span.episode))
+            chosen = head.choose(output, mode == "sample", generator)
+            if config.is_continuous:
+                _, std = head.mean_and_std(output)
+                confidence = 0.5 * std.mean(-1)  # std in units of the action range (scaled space spans 2)
+            else:
+                confidence = head.likelihood(output, chosen)
+            labels, confidences = results.setdefault(span.episode, ([], []))
+            labels.append(chosen.numpy())
+            confidences.append(confidence.numpy())
+            bar.update(len(t))
+    return {episode: (np.concatenate(labels), np.concatenate(conf)) for episode, (labels, conf) in results.items()}
+
+
+def assemble_labels(
+    per_episode: dict[int, tuple[np.ndarray, np.ndarray]], bounds: list[tuple[int, int]], config
+) -> tuple[np.ndarray, np.ndarray]:
+    """One label per frame of the dataset, in frame order (the last frame of an episode: ``LAST_FRAME_RULE``)."""
+    total = bounds[-1][1] if bounds else 0
+    base = bounds[0][0] if bounds else 0
+    if config.is_continuous:
+        labels = np.zeros((total - base, config.action_dim), dtype=np.float32)
+    else:
+        labels = np.zeros(total - base, dtype=np.int64)
+    confidence = np.zeros(total - base, dtype=np.float32)
+    for episode, (first, end) in enumerate(bounds):
+        if episode in per_episode:
+            episode_labels, episode_confidence = per_episode[episode]
+            labels[first - base : end - 1 - base] = episode_labels.reshape(labels[first - base : end - 1 - base].shape)
+            confidence[first - base : end - 1 - base] = episode_confidence
+        if end - first > 1:
+            labels[end - 1 - base] = labels[end - 2 - base]
+            confidence[end - 1 - base] = confidence[end - 2 - base]
+    return labels, confidence
+
+
+def last_frame_mask(meta: LeRobotDatasetMetadata, total_frames: int) -> np.ndarray:
+    mask = np.zeros(total_frames, dtype=bool)
+    mask[[end - 1 for _, end in episode_bounds(meta)]] = True
+    return mask
+
+
+def process_group() -> tuple[int, int]:
+    """(rank, world size): under ``torchrun``/Accelerate (WORLD_SIZE > 1) a gloo process group is joined."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("gloo")
+    return (dist.get_rank(), dist.get_world_size()) if dist.is_initialized() else (0, 1)
+
+
+def gather_on_first(per_episode: dict, world: int) -> dict | None:
+    """Every process's labels on process 0 (None elsewhere)."""
+    if world == 1:
+        return per_episode
+    gathered = [None] * world if dist.get_rank() == 0 else None
+    dist.gather_object(per_episode, gathered, dst=0)
+    if gathered is None:
+        return None
+    return {episode: labels for part in gathered for episode, labels in part.items()}

@@ -1,0 +1,153 @@
+"""``relabel(cfg)``: check, label, write — under the dataset's one-writer lock."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from lerobot.datasets import LeRobotDataset
+from lerobot.utils.constants import ACTION
+from lerobot.utils.import_utils import get_safe_default_video_backend
+
+from lerobot_iupe.data.readers import FrameReader, action_array, episode_bounds, label_spans
+from lerobot_iupe.data.storage import (
+    dataset_lock,
+    is_dataset,
+    read_iupe_meta,
+    recover_interrupted_swap,
+    resolve_root,
+    staged_directory,
+    write_iupe_meta,
+)
+from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.relabel.checks import (
+    check_has_episodes,
+    check_labelable,
+    checkpoint_fingerprint,
+    label_names,
+    load_idm,
+)
+from lerobot_iupe.relabel.config import RelabelConfig, RelabelReport
+from lerobot_iupe.relabel.labelling import (
+    assemble_labels,
+    gather_on_first,
+    label_spans_with_idm,
+    last_frame_mask,
+    process_group,
+)
+from lerobot_iupe.relabel.writing import action_feature, copy_dataset, pull_dataset, write_labels
+
+
+def default_video_backend() -> str:
+    """LeRobot's rule (torchcodec where it loads, else pyav), minus its page-long traceback when it does not."""
+    logger = logging.getLogger("lerobot.utils.import_utils")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        return get_safe_default_video_backend()
+    finally:
+        logger.setLevel(level)
+
+
+def relabel(cfg: RelabelConfig) -> RelabelReport:
+    """Label the dataset ``cfg.dataset`` with the IDM of ``cfg.policy``; write it in place unless ``dry_run``.
+    A writing run holds the dataset's lock (``dataset_lock``) from its first check to its swap."""
+    cfg.validate()
+    rank, world = process_group()
+    root = resolve_root(cfg.dataset.repo_id, cfg.dataset.root)
+    with contextlib.ExitStack() as stack:
+        if rank == 0 and not cfg.dry_run:
+            stack.enter_context(dataset_lock(root))
+        return _relabel(cfg, root, rank, world)
+
+
+def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelReport:
+    torch.set_num_threads(cfg.num_threads)
+    backend = cfg.dataset.video_backend or default_video_backend()
+    device = cfg.policy.device
+    policy = load_idm(cfg.policy.path, device)
+    if rank == 0:
+        recover_interrupted_swap(root)
+        if not is_dataset(root):
+            if root.exists():
+                raise FileNotFoundError(
+                    f"--dataset.root={root} exists but is not a LeRobot dataset (no meta/info.json)"
+                )
+            pull_dataset(cfg.dataset.repo_id, root, backend)
+        check_has_episodes(root)
+    if world > 1:
+        dist.barrier()
+    dataset = LeRobotDataset(cfg.dataset.repo_id, root=root, video_backend=backend)
+    meta = dataset.meta
+    keys = check_labelable(policy, meta, cfg.overwrite, cfg.dry_run)
+    config = policy.config
+
+    start = time.perf_counter()
+    bounds = episode_bounds(meta)
+    spans = label_spans(bounds, cfg.batch_size, config.idm_window, list(range(rank, len(bounds), world)))
+    reader = FrameReader(dataset, keys, backend)
+    per_episode = label_spans_with_idm(policy, reader, spans, cfg.mode, cfg.seed, device, progress=rank == 0)
+    per_episode = gather_on_first(per_episode, world)
+    if world > 1:  # no collective after this; a group left alive aborts the process at exit (gloo's threads)
+        dist.destroy_process_group()
+    seconds = time.perf_counter() - start
+    if per_episode is None:  # not the first process: process 0 writes
+        return RelabelReport(
+            root, str(cfg.policy.path), cfg.mode, 0, 0, [], [], 0.0, None, seconds, world, False, False
+        )
+    labels, confidence = assemble_labels(per_episode, bounds, config)
+    total = len(labels)
+
+    agreement = None
+    inner = ~last_frame_mask(meta, total)
+    if ACTION in meta.features:
+        existing = action_array(dataset)
+        if config.is_continuous:
+            agreement = r_squared(labels[inner], existing.reshape(labels.shape)[inner])
+        else:
+            agreement = float((existing.reshape(total)[inner] == labels[inner]).mean())
+    if config.is_continuous:
+        summary = labels.mean(axis=0).tolist() if total else [0.0] * config.action_dim
+    else:
+        summary = np.bincount(labels, minlength=config.n_actions).tolist()
+    report = RelabelReport(
+        root=root,
+        checkpoint=str(cfg.policy.path),
+        mode=cfg.mode,
+        frames=total,
+        episodes=meta.total_episodes,
+        action_names=label_names(config),
+        action_summary=summary,
+        mean_confidence=float(confidence[inner].mean()) if inner.any() else 0.0,
+        agreement_with_existing=agreement,
+        seconds=seconds,
+        processes=world,
+        continuous=config.is_continuous,
+    )
+    if cfg.dry_run:
+        return report
+
+    with staged_directory(root, overwrite=True) as staged:
+        copy_dataset(root, staged)
+        write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode, config))
+        iupe_meta = read_iupe_meta(staged)
+        iupe_meta.update(
+            has_actions=True,
+            relabelled_by={
+                "checkpoint": str(cfg.policy.path),
+                "checkpoint_sha256": checkpoint_fingerprint(cfg.policy.path),
+                "mode": cfg.mode,
+                "seed": cfg.seed,
+                "idm_context": config.idm_context,
+                "mean_confidence": report.mean_confidence,
+                "agreement_with_previous_actions": agreement,
+            },
+        )
+        write_iupe_meta(staged, iupe_meta)
+    report.written = True
+    return report
