@@ -30,7 +30,7 @@ ffmpeg:
 test: $(STAMP)
 	$(VENV)/bin/ruff check lerobot_iupe lerobot_policy_iupe.py scripts tests
 	$(VENV)/bin/ruff format --check lerobot_iupe lerobot_policy_iupe.py scripts tests
-	$(PY) -m pytest -q -n 2 --dist loadgroup --durations=25
+	$(PY) -m pytest -q -n 2 --durations=25
 
 demo: $(STAMP)
 	$(PY) scripts/demo.py

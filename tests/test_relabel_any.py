@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import BIN, CHECKPOINT, run_cli, run_in_process
+from conftest import BIN, CHECKPOINT, once, run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
@@ -19,9 +19,6 @@ from lerobot_iupe.policy.algorithm import r_squared
 
 CAMERAS = ("observation.images.top", "observation.images.side")
 ACTION_NAMES = ["force_x", "force_y"]
-
-
-pytestmark = pytest.mark.xdist_group("relabel_any")  # one worker: the module's fixtures are built once
 
 
 def write_point_mass(
@@ -106,17 +103,26 @@ def inner(actions: np.ndarray, dataset) -> np.ndarray:
     return actions[np.append(episodes[:-1] == episodes[1:], False)]
 
 
-@pytest.fixture(scope="module")
-def work(tmp_path_factory):
-    return tmp_path_factory.mktemp("any")
+@pytest.fixture(scope="session")
+def work(shared_dir):
+    path = shared_dir / "any"
+    path.mkdir(exist_ok=True)
+    return path
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def continuous_idm(work):
-    """An IDM with a window of k = 1, trained on 12 labelled episodes of a LeRobot-written dataset."""
+    """An IDM with a window of k = 1, trained on 12 labelled episodes of a LeRobot-written dataset (built once for
+    every worker)."""
     labelled = work / "labelled"
-    write_point_mass(labelled, episodes=12, seed=0, with_actions=True)
-    return train_idm(labelled, work / "idm", "--policy.idm_context=1")
+
+    def make():
+        shutil.rmtree(labelled, ignore_errors=True)
+        shutil.rmtree(work / "idm", ignore_errors=True)
+        write_point_mass(labelled, episodes=12, seed=0, with_actions=True)
+        train_idm(labelled, work / "idm", "--policy.idm_context=1")
+
+    return once(work / "idm", make, CHECKPOINT) / CHECKPOINT
 
 
 def test_window_indices_clamp_into_the_episode():
