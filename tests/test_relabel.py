@@ -45,7 +45,10 @@ def labelled_and_stripped(data_dir, name: str, *collect_args: str):
 
 
 def relabel_args(checkpoint, root, *extra: str) -> list[str]:
-    return [f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", *extra]
+    return [
+        f"--policy.path={checkpoint}", "--policy.device=cpu", f"--dataset.repo_id=local/{root.name}",
+        f"--dataset.root={root}", *extra,
+    ]  # fmt: skip
 
 
 def true_actions(root) -> tuple[np.ndarray, np.ndarray]:
