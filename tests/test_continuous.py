@@ -189,9 +189,29 @@ def test_gaussian_head_mean_fits_a_regression_with_a_hard_dimension_and_uneven_n
     assert std[noisy, 1].median() > 3 * std[~noisy, 1].median()
 
 
-def test_categorical_and_gaussian_heads_have_the_same_methods():
-    methods = ("loss", "choose", "mode", "spread", "likelihood", "as_float_action")
-    assert all(callable(getattr(GaussianHead, m)) and callable(getattr(CategoricalHead, m)) for m in methods)
+@pytest.mark.parametrize("kind", ["categorical", "gaussian"])
+def test_categorical_and_gaussian_heads_keep_one_contract(kind):
+    """The loop calls both heads alike: on a distribution peaked at known actions, each method must say so."""
+    if kind == "categorical":
+        head, best, other = CategoricalHead(4, 3), torch.tensor([2, 0]), torch.tensor([1, 1])
+        peaked = torch.tensor([[0.0, 0.0, 5.0], [5.0, 0.0, 0.0]])
+        wide = torch.zeros(2, 3)
+    else:
+        head = GaussianHead(4, 2, low=[-2.0, 0.0], high=[2.0, 1.0])  # scaled: a = low + (s + 1)(high - low)/2
+        best, other = torch.tensor([[1.0, 0.25], [-1.0, 0.75]]), torch.tensor([[-1.5, 0.9], [1.5, 0.1]])
+        peaked = torch.tensor([[0.5, -0.5, -3.0, -3.0], [-0.5, 0.5, -3.0, -3.0]])
+        wide = torch.tensor([[0.5, -0.5, 0.5, 0.5], [-0.5, 0.5, 0.5, 0.5]])
+    assert torch.allclose(head.mode(peaked).float(), best.float())
+    assert torch.equal(head.choose(peaked, explore=False), head.mode(peaked))
+    draw = lambda seed: head.choose(wide, explore=True, generator=torch.Generator().manual_seed(seed))  # noqa: E731
+    assert torch.equal(draw(0), draw(0)) and not all(torch.equal(draw(0), draw(s)) for s in range(1, 6))
+    assert head.spread(peaked, head.mode(peaked)) == 0.0 < max(head.spread(wide, draw(s)) for s in range(5))
+    assert (head.likelihood(peaked, best) > head.likelihood(peaked, other)).all()
+    assert head.loss(peaked, best) < head.loss(peaked, other)
+    labels, spread = head.labels(peaked, best, explore=False)
+    assert torch.equal(labels, best) and spread is None
+    action = head.as_float_action(best)
+    assert action.dtype == torch.float32 and action.shape == (2, 1 if kind == "categorical" else 2)
 
 
 def test_r_squared():
