@@ -13,8 +13,9 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_iupe.benchmark import evaluate_checkpoint
 from lerobot_iupe.data.readers import load_transitions
-from lerobot_iupe.envs.configs import action_space_of, env_settings
+from lerobot_iupe.envs.configs import LunarLanderEnvConfig, action_space_of, env_settings
 from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
 from lerobot_iupe.policy.training import IUPETrainer
 
@@ -66,11 +67,18 @@ def test_iupe_learns_lunarlander_action_effects_from_state_only_demos(lunar_run,
     assert (acted >= low).all() and (acted <= high).all()
 
 
-def test_lerobot_eval_runs_a_continuous_checkpoint(lunar_run, tmp_path):
-    overall = evaluate(
-        lunar_run / CHECKPOINT, tmp_path / "eval", "--env.type=lunarlander", "--env.episode_length=100", episodes=2
-    )
-    assert overall["n_episodes"] == 2 and np.isfinite(overall["avg_sum_reward"])
+def test_lerobot_eval_runs_a_continuous_checkpoint_under_both_rules(lunar_run, tmp_path):
+    """lerobot-eval applies --policy.eval_mode to a Gaussian head and scores what the benchmark's evaluation scores."""
+    returns = {}
+    for mode in ("argmax", "sample"):
+        cli = evaluate(
+            lunar_run / CHECKPOINT, tmp_path / mode, "--env.type=lunarlander", "--env.episode_length=100",
+            f"--policy.eval_mode={mode}", episodes=2,
+        )  # fmt: skip
+        ours = evaluate_checkpoint(lunar_run / CHECKPOINT, LunarLanderEnvConfig(episode_length=100), 2, mode)
+        assert cli["n_episodes"] == 2 and cli["avg_sum_reward"] == pytest.approx(ours["avg_sum_reward"])
+        returns[mode] = cli["avg_sum_reward"]
+    assert returns["argmax"] != pytest.approx(returns["sample"])  # draws are not the mode
 
 
 def test_so101_plugin_env_trains_from_lerobot_train_env_flags_without_package_metadata(data_dir, tmp_path):

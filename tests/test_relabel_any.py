@@ -11,6 +11,7 @@ import pytest
 from conftest import BIN, CHECKPOINT, once, run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from safetensors.torch import load_file
 
 from lerobot_iupe.data.readers import label_spans, window_indices
 from lerobot_iupe.hub import build_card
@@ -193,7 +194,13 @@ def test_lerobot_act_trains_on_the_relabelled_dataset(continuous_idm, work):
         "--policy.push_to_hub=false", "--wandb.enable=false", "--policy.chunk_size=5", "--policy.n_action_steps=5",
         "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64", "--save_freq=3",
     )  # fmt: skip
-    assert (out / CHECKPOINT / "model.safetensors").exists()
+    # ACT predicts our 2-D labels and normalises them by stats that are those of the written labels
+    config = json.loads((out / CHECKPOINT / "config.json").read_text())
+    assert config["output_features"]["action"]["shape"] == [2]
+    labels = np.asarray(LeRobotDataset("local/for-act", root=dataset).hf_dataset.with_format("numpy")["action"])
+    stats = load_file(out / CHECKPOINT / "policy_postprocessor_step_0_unnormalizer_processor.safetensors")
+    np.testing.assert_allclose(stats["action.mean"].numpy(), labels.mean(0), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(stats["action.std"].numpy(), labels.std(0), rtol=1e-3, atol=1e-5)
 
 
 def test_two_processes_write_the_same_bytes_as_one(continuous_idm, work):
