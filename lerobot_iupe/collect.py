@@ -28,6 +28,8 @@ from lerobot_iupe.experts import AGENTS, make_agent
 
 REWARD, DONE, SUCCESS = "next.reward", "next.done", "next.success"
 ENV_TYPES = ("cartpole", "acrobot", "mountaincar", "maze", "lunarlander", "so101_pickplace")
+# Flags that were top-level before they took LeRobot's names.
+RENAMED_FLAGS = {"--push_to_hub": "--dataset.push_to_hub"}
 
 
 @dataclass

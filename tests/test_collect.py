@@ -84,6 +84,7 @@ def test_keep_actions_stores_expert_actions(data_dir):
         (["--env.type=maze", "--env.size=1"], "--env.size must be at least 2"),
         (["--env.type=cartpole", "--random_start=true"], "--random_start"),
         (["--env.type=cartpole", "--video=false"], "--video=false only applies"),
+        (["--env.type=cartpole", "--push_to_hub=true"], "--push_to_hub is now --dataset.push_to_hub"),
     ],
 )
 def test_bad_input_is_refused_and_writes_nothing(tmp_path, args, message):

@@ -15,7 +15,7 @@ Expert datasets carry no `action` column unless --keep_actions=true; random data
 from lerobot.configs import parser
 
 from lerobot_iupe.cli import run_cli
-from lerobot_iupe.collect import CollectConfig, collect
+from lerobot_iupe.collect import RENAMED_FLAGS, CollectConfig, collect
 
 
 @parser.wrap()
@@ -33,7 +33,7 @@ def collect_main(cfg: CollectConfig) -> None:
 
 
 def main() -> None:
-    run_cli(collect_main, renamed={"--push_to_hub": "--dataset.push_to_hub"})
+    run_cli(collect_main, renamed=RENAMED_FLAGS)
 
 
 if __name__ == "__main__":
