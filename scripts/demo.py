@@ -51,7 +51,10 @@ def main() -> None:
             f"| IUPE | {r['env']} | {r['eval_layouts'] or '–'} | {r['eval_mode']} | {r['P']:.3f} | {r['AER']:.3f} "
             f"| {r['success_rate']:.0%} | {r['train_seconds']:.0f} |"
         )
-    print(f"\nreferences: expert {records[0]['R_expert']:.3f} (demonstrations), random {records[0]['R_random']:.3f}")
+    print(
+        f"\nreferences (the built-in expert and a uniform-random agent on the same episodes): "
+        f"expert {records[0]['R_expert']:.3f}, random {records[0]['R_random']:.3f}"
+    )
     print(f"checkpoint: {out / 'runs' / 'demo' / args.env / 'iupe-s0' / CHECKPOINT}")
     print(f"plot: {out / 'cycles.png'}   report: {out / 'results.md'}")
     run_logs = out / "runs" / "demo" / args.env

@@ -7,6 +7,7 @@ from lerobot_iupe.policy.algorithm import (
     apportion,
     build_sampled_set,
     choose_actions,
+    held_out_split,
     performance,
     sampling_counts,
     success_action_distribution,
@@ -130,3 +131,14 @@ def test_metrics():
     assert performance(np.array([500.0, 500.0]), 500.0, 20.0) == 1.0
     assert performance(np.array([20.0]), 500.0, 20.0) == 0.0
     assert performance(np.array([260.0]), 500.0, 20.0) == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 10, 99, 1000])
+def test_held_out_split_is_a_disjoint_cover_with_a_tenth_held(n):
+    train, held = held_out_split(n, np.random.default_rng(0))
+    assert sorted([*train, *held]) == list(range(n))  # every item once, on one side only
+    assert len(held) == (n // 10 if n >= 10 else min(1, n - 1))
+    again = held_out_split(n, np.random.default_rng(0))
+    assert np.array_equal(again[1], held) and not np.array_equal(
+        held_out_split(1000, np.random.default_rng(1))[1], held_out_split(1000, np.random.default_rng(0))[1]
+    )

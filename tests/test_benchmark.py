@@ -8,21 +8,22 @@ from conftest import CHECKPOINT, run_cli, run_in_process
 
 from lerobot_iupe.benchmark import PRESETS, Run, method_flags, read_training_run
 
+LAYOUTS = ("demo", "heldout")
+
 
 def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     out = tmp_path / "out"
-    args = ["--quick", "--envs", "cartpole", "maze3", "--methods", "random", "bco", "iupe"]
+    args = ["--quick", "--envs", "cartpole", "maze3", "--methods", "expert", "random", "bco", "iupe"]
     # two runs at a time: each run is recorded once, with its own evaluation
     run_cli("lerobot-iupe-benchmark", *args, "--jobs=2", f"--work={tmp_path / 'work'}", f"--out={out}")
     records = json.loads((out / "results.json").read_text())
     keys = {"env", "method", "seed", "eval_layouts", "P", "AER", "success_rate", "train_seconds"}
     assert all(keys <= set(r) for r in records)
     trained = [r for r in records if r["method"] in ("bco", "iupe")]
-    assert len(trained) == 10
-    # every maze checkpoint under both evaluation rules, on both layout sets; vector policies by argmax
+    assert len(trained) == 12
+    # every checkpoint under both evaluation rules; mazes on both layout sets
     assert {(r["env"], r["method"], r["eval_layouts"], r["eval_mode"]) for r in trained} == {
-        ("cartpole", "bco", None, "argmax"),
-        ("cartpole", "iupe", None, "argmax"),
+        *{("cartpole", m, None, mode) for m in ("bco", "iupe") for mode in ("argmax", "sample")},
         *{
             ("maze3", m, lay, mode)
             for m in ("bco", "iupe")
@@ -30,12 +31,18 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
             for mode in ("argmax", "sample")
         },
     }
-    maze = [r for r in records if r["env"] == "maze3"]
-    # held-out P uses references measured on the held-out layouts
-    assert len({(r["R_expert"], r["R_random"]) for r in maze if r["eval_layouts"] == "heldout"}) == 1
-    assert {r["R_random"] for r in maze if r["eval_layouts"] == "heldout"} != {
-        r["R_random"] for r in maze if r["eval_layouts"] == "demo"
-    }
+    # references are the built-in agents' returns on exactly the scored episodes: Random scores 0, Expert 1
+    for env, layouts in [("cartpole", None), ("maze3", "demo"), ("maze3", "heldout")]:
+        rows = [r for r in records if r["env"] == env and r["eval_layouts"] == layouts]
+        (expert,) = [r for r in rows if r["method"] == "expert"]
+        (random,) = [r for r in rows if r["method"] == "random"]
+        assert {(r["R_expert"], r["R_random"]) for r in rows} == {(expert["AER"], random["AER"])}
+        assert random["P"] == 0.0 and expert["P"] == 1.0
+    demo_random, heldout_random = ({r["R_random"] for r in records if r["eval_layouts"] == lay} for lay in LAYOUTS)
+    assert demo_random != heldout_random
+    # each row says how its checkpoint was selected; maze rollouts select on the demonstration layouts
+    assert all(r["selection"].startswith("best rollout success of a cycle (2 cycles × 4 episodes") for r in trained)
+    assert {"demonstration" in r["selection"] for r in trained if r["env"] == "maze3"} == {True}
     assert all(r["train_seconds"] > 0 and r["cycles"] for r in trained)
     assert all(r["timing"]["idm_s"] > 0 and r["timing"]["rollouts_s"] > 0 for r in trained)
     report = (out / "results.md").read_text()
@@ -53,6 +60,16 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     assert "lerobot-train" not in fresh.stdout and f"{len(published)} records added" in fresh.stdout
     assert json.loads((out / "results.json").read_text()) == published
     assert len(json.loads((out / "calls.json").read_text())) == 3
+    # a report scored against other references is scored again against the scored episodes' own
+    stale = tmp_path / "stale"
+    stale.mkdir()
+    old = [dict(r, R_random=r["R_random"] - 7.0, P=0.5) if r["env"] == "cartpole" else r for r in published]
+    (stale / "results.json").write_text(json.dumps(old))
+    rescored = run_cli(
+        "lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'rescored'}", f"--out={stale}", f"--from={stale}"
+    )
+    assert "lerobot-train" not in rescored.stdout
+    assert json.loads((stale / "results.json").read_text()) == published
 
 
 def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):

@@ -15,6 +15,7 @@ import lerobot_iupe.policy.training as training
 from lerobot_iupe.data.storage import read_iupe_meta
 from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
+from lerobot_iupe.policy.algorithm import held_out_split
 from lerobot_iupe.policy.training import TRAINING_STATE_FILE
 
 
@@ -100,6 +101,15 @@ def test_building_a_policy_leaves_the_process_thread_count_alone(cartpole_run, c
         torch.set_num_threads(threads)
 
 
+def row_keys(data: Transitions) -> list[bytes]:
+    parts = zip(data.states, data.actions, data.next_states, strict=True)
+    return [state.tobytes() + action.tobytes() + after.tobytes() for state, action, after in parts]
+
+
+def sorted_rows(data: Transitions) -> list[bytes]:
+    return sorted(row_keys(data))
+
+
 class Spy:
     """Records a real function's arguments and result."""
 
@@ -120,21 +130,30 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     monkeypatch.setattr(training, "build_sampled_set", sampled_sets)
     rollouts = Spy(policy.trainer.rollout)
     monkeypatch.setattr(policy.trainer, "rollout", rollouts)
+    idm_trainings = Spy(policy.trainer.train_idm)
+    monkeypatch.setattr(policy.trainer, "train_idm", idm_trainings)
     selected_pm = None
     optimizer = None
     for _ in range(3):
         optimizer = train_steps(policy, maze_expert, 2, optimizer)
         if policy.cycles[-1]["selected"]:
             selected_pm = {k: v.clone() for k, v in policy.state_dict().items() if k.startswith("pm_")}
-    pre = policy.trainer.state.pre
+    pre, pre_held = policy.trainer.state.pre, policy.trainer.state.pre_held
+    n_pre = len(pre) + len(pre_held)
+    assert len(pre_held) == n_pre // 10
+    assert idm_trainings.calls[0][0] == (pre, pre_held)  # the first IDM: I_pre less its held-out tenth
     mixed = 0
-    for (_, kwargs, (episodes, successes, _)), (args, _, sampled) in zip(
-        rollouts.calls, sampled_sets.calls, strict=True
+    for (_, kwargs, (episodes, successes, _)), (args, _, sampled), ((trained, held), _, _) in zip(
+        rollouts.calls, sampled_sets.calls, idm_trainings.calls[1:], strict=True
     ):
         _, successful, _, size, _ = args
         expected = Transitions.concat([e for e, ok in zip(episodes, successes, strict=True) if ok] or [pre.take([])])
-        assert np.array_equal(successful.states, expected.states)  # only runs that reached the goal
-        assert np.array_equal(successful.actions, expected.actions)
+        # only runs that reached the goal, less a tenth held out before I^s draws copies of them
+        new_held = held.take(np.arange(len(pre_held), len(held)))
+        assert np.array_equal(held.states[: len(pre_held)], pre_held.states)
+        assert sorted_rows(Transitions.concat([successful, new_held])) == sorted_rows(expected)
+        assert len(new_held) == len(held_out_split(len(expected), np.random.default_rng(0))[1])
+        assert trained is sampled  # the IDM trains on I^s and is scored on what I^s was not drawn from
         assert size == len(pre) and len(sampled) == len(pre)
         assert kwargs["explore"] is True
         mixed += 0 < successes.sum() < len(successes)

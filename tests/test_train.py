@@ -109,8 +109,10 @@ def cycles_of(run: Path) -> list[dict]:
 
 def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpole_random, tmp_path):
     pre_transitions = LeRobotDatasetMetadata("local/r", root=cartpole_random).total_frames - 400  # 400 episodes
+    pre_trained_on = pre_transitions - pre_transitions // 10  # a tenth of I_pre scores the IDM
     iupe = cycles_of(cartpole_run)
-    assert all(c["sampled_set_size"] == pre_transitions for c in iupe)  # |I^s| = |I_pre|
+    assert all(c["sampled_set_size"] == pre_trained_on for c in iupe)  # |I^s| = |I_pre| less the held-out part
+    assert all(c["idm_held_out"] >= pre_transitions // 10 for c in iupe)
     assert any(c["label_non_map"] > 0 for c in iupe)
     bco = tmp_path / "bco"
     switches = ["--policy.sampling=false", "--policy.exploration=false", "--policy.attention=false"]
@@ -118,7 +120,7 @@ def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpo
     run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, bco, *short, *switches))
     cycles = cycles_of(bco)
     # BCO(α): I_pre plus every transition of the latest rollouts; argmax labels; no attention modules
-    assert all(c["sampled_set_size"] > pre_transitions + 4 for c in cycles)
+    assert all(c["sampled_set_size"] > pre_trained_on + 4 for c in cycles)
     assert all(c["label_non_map"] == 0 for c in cycles)
     assert not [k for k in load_file(bco / CHECKPOINT / "model.safetensors") if "gamma" in k]
 

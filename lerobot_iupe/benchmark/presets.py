@@ -75,6 +75,9 @@ class EnvPreset:
     env: dict  # EnvConfig fields, "type" included
     data: DataSettings
     train: TrainBudget
+    eval_modes: tuple[str, ...] = ("argmax", "sample")
+    """Every checkpoint is evaluated under both rules of ``--policy.eval_mode``: the most likely action (the
+    categorical argmax, the Gaussian's mode: what ``lerobot-eval`` plays by default) and a draw."""
 
     @property
     def is_maze(self) -> bool:
@@ -85,15 +88,6 @@ class EnvPreset:
 
     def env_flags(self) -> list[str]:
         return [f"--env.{k}={v}" for k, v in self.env.items()]
-
-    @property
-    def eval_modes(self) -> tuple[str, ...]:
-        """Every maze checkpoint is evaluated both ways (an argmax policy that bumps into a wall stays put until
-        the step cap), and every continuous one (the Gaussian's mode — `argmax` — or a draw: LunarLander's side
-        engines fire only for |a| > 0.5, which a mean of mixed labels may never reach); discrete vector policies by
-        argmax."""
-        continuous = not getattr(self.env_config(), "n_actions", 0)
-        return ("argmax", "sample") if self.is_maze or continuous else ("argmax",)
 
     @property
     def layouts(self) -> list[str | None]:

@@ -36,7 +36,7 @@ def _cell(rows: list[dict]) -> str:
     p, aer = np.array([r["P"] for r in rows]), np.array([r["AER"] for r in rows])
     if len(rows) == 1:
         return f"{p[0]:.3f} / {aer[0]:.3f}"
-    return f"{p.mean():.3f} ± {p.std():.3f} / {aer.mean():.3f} ± {aer.std():.3f} (n={len(rows)})"
+    return f"{p.mean():.3f} ± {p.std(ddof=1):.3f} / {aer.mean():.3f} ± {aer.std(ddof=1):.3f} (n={len(rows)})"
 
 
 def _rows(records: list[dict], mode: str | None, **match) -> list[dict]:
@@ -50,7 +50,7 @@ def _success_cell(rows: list[dict]) -> str:
     rates = np.array([r["success_rate"] for r in rows if r.get("success_rate") is not None])
     if not len(rates):
         return "–"
-    return f"{rates[0]:.2f}" if len(rates) == 1 else f"{rates.mean():.2f} ± {rates.std():.2f} (n={len(rates)})"
+    return f"{rates[0]:.2f}" if len(rates) == 1 else f"{rates.mean():.2f} ± {rates.std(ddof=1):.2f} (n={len(rates)})"
 
 
 def _table(records, table, envs, methods, layouts, mode, paper=None, cell=_cell) -> list[str]:
@@ -101,18 +101,20 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             for c in calls
         ],
         "",
-        "Cells: P / AER, mean ± std over training seeds "
+        "Cells: P / AER, mean ± sample standard deviation (ddof = 1) over training seeds "
         "(expert and random rows: the built-in agents, one evaluation). Evaluation: "
         f"{records[0]['eval_episodes'] if records else '?'} episodes on seeds {EVAL_SEED}… never used in training "
         "(mazes: 100 distinct layouts, the demonstration layouts — the paper's protocol — and held-out ones). "
         "Every method of a table is evaluated under the same rule: `argmax` (the policy's most likely action) or "
-        "`sample` (a draw from its softmax), `--policy.eval_mode`; every maze checkpoint is evaluated both ways. "
+        "`sample` (a draw from its softmax or Gaussian), `--policy.eval_mode`; every checkpoint is evaluated both "
+        "ways (`argmax` is what `lerobot-eval` plays by default). "
         "The expert and random rows play the built-in agents on the same envs, seeds and layouts with the "
         "package's episode loop (the maze expert reads the simulator's state, which a LeRobot policy cannot).",
         "",
-        "References (P = (R − R_random) / (R_expert − R_random)): R_expert = mean return of the expert "
-        "demonstrations (held-out maze layouts: of the expert on 100 of them), R_random = uniform-random policy "
-        "over 100 episodes (seeds 100000…) on the same layout set:",
+        "References (P = (R − R_random) / (R_expert − R_random)): R_expert and R_random are the mean returns of the "
+        "built-in expert and of the uniform-random agent on exactly the episodes the rows are scored on (the same "
+        "seeds and layouts), so the Random row scores P = 0 and the Expert row P = 1 by construction, and every "
+        "table of an env (low data included) shares one reference:",
         "",
         *[
             f"- {t} {ENV_NAMES.get(e, e)}{f' ({lay} layouts)' if lay else ''}: R_expert {x:.3f}, R_random {y:.3f}"
@@ -124,11 +126,10 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
         lines += ["", findings.read_text().strip()]
     mazes = [e for e in envs1 if e.startswith("maze")]
     demo_layouts = lambda e: "demo" if e.startswith("maze") else None  # noqa: E731
-    lines += ["", "## Table 1, argmax evaluation (demonstration layouts for mazes)", ""]
-    lines += _table(records, "table1", envs1, methods, demo_layouts, "argmax", PAPER_TABLE1)
+    for mode in ("argmax", "sample"):
+        lines += ["", f"## Table 1, {mode} evaluation (demonstration layouts for mazes)", ""]
+        lines += _table(records, "table1", envs1, methods, demo_layouts, mode, PAPER_TABLE1)
     if mazes:
-        lines += ["", "## Table 1, mazes, sampled evaluation (demonstration layouts)", ""]
-        lines += _table(records, "table1", mazes, methods, demo_layouts, "sample", PAPER_TABLE1)
         for mode in ("argmax", "sample"):
             lines += ["", f"## Table 1, mazes on held-out layouts, {mode} evaluation (not measured in the paper)", ""]
             lines += _table(records, "table1", mazes, methods, lambda e: "heldout", mode)
@@ -167,12 +168,24 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             lines += _table(records, "continuous", continuous, methods, lambda e: None, mode, cell=_success_cell)
     low = [e for e in LOW_DATA if _group(records, table="lowdata", env=e)]
     if low:
-        lines += ["", "## Low data: 1 expert episode, ~1,000 pre-demonstration transitions (argmax evaluation)", ""]
-        lines += _table(records, "lowdata", low, LOW_DATA_METHODS, lambda e: None, "argmax")
+        for mode in ("argmax", "sample"):
+            lines += [
+                "",
+                f"## Low data: 1 expert episode, ~1,000 pre-demonstration transitions ({mode} evaluation)",
+                "",
+            ]
+            lines += _table(records, "lowdata", low, LOW_DATA_METHODS, lambda e: None, mode)
         if any(e in CONTINUOUS for e in low):
-            lines += ["", "Low data, continuous actions, sample evaluation:", ""]
-            cont = [e for e in low if e in CONTINUOUS]
-            lines += _table(records, "lowdata", cont, LOW_DATA_CONTINUOUS_METHODS, lambda e: None, "sample")
+            lines += ["", f"Continuous envs' low-data rows: {', '.join(LOW_DATA_CONTINUOUS_METHODS)} only."]
+    lines += ["", "## How each checkpoint was selected", ""]
+    rules = {}
+    for r in records:
+        if r["seed"] is not None:
+            rules.setdefault((r["table"], r["env"], r["method"]), set()).add(r.get("selection", "not recorded"))
+    lines += [
+        f"- {table} {ENV_NAMES.get(env, env)} {METHOD_NAMES.get(method, method)}: {'; '.join(sorted(rule))}"
+        for (table, env, method), rule in sorted(rules.items(), key=str)
+    ]
     lines += ["", "## Where the time goes (mean seconds per training run)", ""]
     lines += [
         "| table | env | method | runs | train (wall) | rollouts | IDM training | data loading | PM + other | eval |",
@@ -251,7 +264,7 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
         for i, method in enumerate(methods):
             ours = [_group(table1, env=e, method=method) for e in envs]
             mean = [np.mean([r["P"] for r in rows]) if rows else np.nan for rows in ours]
-            std = [np.std([r["P"] for r in rows]) if rows else 0 for rows in ours]
+            std = [np.std([r["P"] for r in rows], ddof=1) if len(rows) > 1 else 0 for rows in ours]
             x = np.arange(len(envs)) + (2 * i - 2.5) * width
             ax.bar(x, mean, width, yerr=std, label=f"{METHOD_NAMES[method]} (ours)", color=f"C{i}")
             paper = [PAPER_TABLE1[method][e][0] for e in envs]

@@ -26,10 +26,8 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from lerobot_iupe.benchmark.evaluation import evaluate_agent, evaluate_checkpoint, read_training_run
+from lerobot_iupe.benchmark.evaluation import EVAL_SEED, evaluate_agent, evaluate_checkpoint, read_training_run
 from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags
-from lerobot_iupe.data.storage import read_iupe_meta
-from lerobot_iupe.experts import reference_returns
 from lerobot_iupe.policy.algorithm import performance
 
 BIN = Path(sys.executable).parent
@@ -148,6 +146,7 @@ class Benchmark:
     quick: bool = False
     quiet: bool = False  # the demo: progress bars instead of command lines; every output is in a log file
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _agents: dict[str, dict] = field(default_factory=dict, repr=False)  # built-in agents' evaluations, by key
 
     @property
     def records_file(self) -> Path:
@@ -207,18 +206,45 @@ class Benchmark:
         key = (run.table, run.name, run.method, run.seed, run.config_key(self.eval_episodes))
         return any((r["table"], r["env"], r["method"], r["seed"], r.get("config")) == key for r in self.records())
 
-    def references(self, preset: EnvPreset, data: dict[str, Path]) -> dict[str | None, tuple[float, float]]:
-        """Per evaluation layout set: R_expert = mean return of the expert demonstrations (held-out maze layouts:
-        of the expert on 100 of them), R_random = uniform-random policy, 100 episodes (seeds 100000…)."""
-        references = {}
-        for layouts in preset.layouts:
-            env_cfg = preset.env_config(layouts)
-            if layouts == "heldout":
-                expert = float(reference_returns(env_cfg, "expert", 100).mean())
-            else:
-                expert = read_iupe_meta(data["expert"])["mean_return"]
-            references[layouts] = (expert, float(reference_returns(env_cfg, "random", 100).mean()))
-        return references
+    def agent_evaluation(self, agent: str, preset: EnvPreset, layouts: str | None) -> dict:
+        """A built-in agent on the scored episodes of ``preset`` (evaluated once per env, layouts and episode
+        count: every table of an env shares it)."""
+        key = digest([agent, preset.env, layouts, self.eval_episodes])
+        with self._lock:
+            if key in self._agents:
+                return self._agents[key]
+        overall = evaluate_agent(agent, preset.env_config(layouts), self.eval_episodes)
+        with self._lock:
+            return self._agents.setdefault(key, overall)
+
+    def references(self, preset: EnvPreset) -> dict[str | None, tuple[float, float]]:
+        """Per evaluation layout set: (R_expert, R_random), the mean returns of the built-in expert and of the
+        uniform-random agent on exactly the episodes every row is scored on (seeds ``EVAL_SEED``…, the same
+        layouts), so that the Random row scores P = 0 and the Expert row P = 1 by construction, and one reference
+        serves every table of an env (low data included)."""
+        return {
+            layouts: tuple(
+                float(self.agent_evaluation(agent, preset, layouts)["avg_sum_reward"]) for agent in ("expert", "random")
+            )
+            for layouts in preset.layouts
+        }
+
+    def rescore(self, table: str, name: str, references: dict[str | None, tuple[float, float]]) -> int:
+        """Score the recorded rows of ``table``/``name`` against ``references`` (P from each row's own AER), where
+        they were scored against others; returns how many rows changed. Rewritten whole, as ``forget``."""
+        records, changed = self.records(), 0
+        for record in records:
+            if (record["table"], record["env"]) != (table, name) or record["eval_layouts"] not in references:
+                continue
+            r_expert, r_random = references[record["eval_layouts"]]
+            if (record["R_expert"], record["R_random"]) != (r_expert, r_random):
+                record.update(R_expert=r_expert, R_random=r_random, P=performance([record["AER"]], r_expert, r_random))
+                changed += 1
+        if changed:
+            partial = self.records_file.with_suffix(".jsonl.partial")
+            partial.write_text("".join(json.dumps(r) + "\n" for r in records))
+            partial.replace(self.records_file)
+        return changed
 
     def plan(
         self,
@@ -232,13 +258,18 @@ class Benchmark:
         """The unrecorded runs of ``methods`` × ``seeds`` (a run is recorded when a row with its table, env, method,
         seed and configuration key exists), collecting the datasets and measuring the references first."""
         data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet, "bc" in methods)
-        references = self.references(preset, data)
+        references = self.references(preset)
+        with self._lock:
+            self.rescore(table, name, references)
         runs = [
             Run(table, name, preset, method, seed, data, references, self.quick)
             for method in methods
             for seed in ([None] if method in ("expert", "random") else seeds)
         ]
-        return [run for run in runs if not self._done(run)]
+        pending = [run for run in runs if not self._done(run)]
+        with self._lock:  # rows of an older configuration of a pending run are replaced, not kept beside it
+            self.forget([(run.table, run.name, run.method, run.seed) for run in pending])
+        return pending
 
     def plan_all(self, requests: list[dict], jobs: int = 1) -> list[Run]:
         """``plan(**request)`` for each request, ``jobs`` datasets collected at a time; requests that share
@@ -287,11 +318,9 @@ class Benchmark:
             print(f"[benchmark] {run.table} {run.name} {run.method} seed={run.seed}", flush=True)
         preset, episodes = run.preset, self.eval_episodes
         train_seconds, cycles, timing = 0.0, [], {}
+        selection = "none: the built-in agent"
         if run.method in ("expert", "random"):
-            with self._lock:
-                evals = {
-                    (lay, None): evaluate_agent(run.method, preset.env_config(lay), episodes) for lay in preset.layouts
-                }
+            evals = {(lay, None): self.agent_evaluation(run.method, preset, lay) for lay in preset.layouts}
         else:
             out = self.work / "runs" / run.table / run.name / f"{run.method}-s{run.seed}"
             shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
@@ -309,6 +338,7 @@ class Benchmark:
             )  # fmt: skip
             train_seconds = time.perf_counter() - start
             cycles, timing = read_training_run(out / CHECKPOINT, output, run.budget.steps)
+            selection = selection_rule(run, out / CHECKPOINT, cycles)
             evals = {}
             # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
             with self._lock, self._output_to(out.with_suffix(".eval.log")):
@@ -328,8 +358,21 @@ class Benchmark:
                         "config": run.config_key(episodes), "eval_layouts": lay, "eval_mode": mode,
                         "P": performance([aer], r_expert, r_random), "AER": aer,
                         "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
-                        "train_seconds": train_seconds,
+                        "selection": selection, "train_seconds": train_seconds,
                         "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
                         "timing": timing, "cycles": cycles,
                     }
                 )  # fmt: skip
+
+
+def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
+    """How a run's checkpoint was chosen, in words (recorded with each of its rows)."""
+    if run.method == "bc" or not cycles:
+        return "the last step's weights (no selection)"
+    episodes = json.loads((checkpoint / "config.json").read_text())["rollout_episodes"]
+    where = (
+        "the expert dataset's own (demonstration) layouts"
+        if run.preset.is_maze
+        else f"seeds ≥ 1,000,000 (evaluation: {EVAL_SEED}…)"
+    )
+    return f"best rollout success of a cycle ({len(cycles)} cycles × {episodes} episodes, latest on ties), on {where}"

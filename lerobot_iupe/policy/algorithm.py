@@ -144,6 +144,14 @@ class ActionCells:
         return out
 
 
+def held_out_split(n: int, rng: np.random.Generator, fraction: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of ``n`` items split into a training part and a held-out part (``fraction`` of them, at least one
+    when ``n`` > 1). Split before I^s is drawn with replacement, so no copy of a held-out item is trained on."""
+    order = rng.permutation(n)
+    held = int(n * fraction) if n * fraction >= 1 else min(1, n - 1)
+    return np.sort(order[held:]), np.sort(order[:held])
+
+
 def r_squared(predicted: np.ndarray, true: np.ndarray) -> float:
     """Coefficient of determination averaged over action dimensions (1 = exact; 0 = no better than the mean)."""
     predicted = np.asarray(predicted, np.float64).reshape(len(true), -1)

@@ -34,7 +34,13 @@ from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
 from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys, make_envs
 from lerobot_iupe.envs.rollout import run_episodes
-from lerobot_iupe.policy.algorithm import ActionCells, build_sampled_set, r_squared, success_action_distribution
+from lerobot_iupe.policy.algorithm import (
+    ActionCells,
+    build_sampled_set,
+    held_out_split,
+    r_squared,
+    success_action_distribution,
+)
 from lerobot_iupe.policy.train_run import resuming
 
 if TYPE_CHECKING:
@@ -47,11 +53,13 @@ CYCLES_FILE = "iupe_cycles.jsonl"
 
 @dataclass
 class TrainingState:
-    """What the cycle carries from step to step; all of it but ``pre`` is saved beside a checkpoint."""
+    """What the cycle carries from step to step; all of it but ``pre`` and ``pre_held`` (read again, and split
+    again identically, on resume) is saved beside a checkpoint."""
 
     seed: int
     rank: int
-    pre: Transitions
+    pre: Transitions  # the IDM's part of I_pre (I^s is drawn from it)
+    pre_held: Transitions  # the rest: scores the IDM every cycle and is never trained on
     sampled_set_size: int
     rng: np.random.Generator
     torch_rng: torch.Generator | None  # None where the policy runs on another device (then: the global one)
@@ -172,12 +180,16 @@ class IUPETrainer:
         pre = load_transitions(pre_dataset, cfg.observation_keys)
         if cfg.is_continuous:  # fitted again identically on resume (own seed)
             self.cells = ActionCells.fit(pre.actions, cfg.action_cells, cfg.action_low, cfg.action_high, self.seed)
+        # Its own stream, so that a resumed run holds out the same transitions without saving them.
+        train_part, held_part = held_out_split(len(pre), np.random.default_rng([self.seed, rank, 1]))
+        pre, pre_held = pre.take(train_part), pre.take(held_part)
         size = cfg.sampled_set_size or len(pre)
         idm = self.policy.idm_parameters()
         self.state = state = TrainingState(
             seed=self.seed,
             rank=rank,
             pre=pre,
+            pre_held=pre_held,
             sampled_set_size=size,
             rng=np.random.default_rng([self.seed, rank]),
             torch_rng=torch.Generator(device="cpu").manual_seed((self.seed * 1000 + rank) % 2**63),
@@ -185,14 +197,17 @@ class IUPETrainer:
         )
         if state.torch_rng.device != self.device:
             state.torch_rng = None
-        log.info(f"IUPE: {len(pre)} pre-demonstration transitions, I^s size {size}, env {self.env_cfg.type}")
+        log.info(
+            f"IUPE: {len(pre) + len(pre_held)} pre-demonstration transitions ({len(pre_held)} held out to score "
+            f"the IDM), I^s size {size}, env {self.env_cfg.type}"
+        )
         saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path and self.resume else None
         if saved is not None and saved.exists():
             self.restore(torch.load(saved, map_location=self.device, weights_only=True))
             log.info(f"IUPE: continuing from cycle {state.cycle} (step {state.step}) of {saved.parent}")
             return
         start = time.perf_counter()
-        self.train_idm(pre)
+        self.train_idm(pre, pre_held)
         state.idm_s += time.perf_counter() - start
 
     def set_threads(self) -> None:
@@ -257,8 +272,11 @@ class IUPETrainer:
             self.selected_weights = copy.deepcopy(self.policy.state_dict())
         pre = state.pre
         good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
+        # The IDM is scored on transitions it is not trained on: a tenth of this cycle's rollout transitions that
+        # enter I^s (and I_pre's held-out part), split off before I^s draws copies.
         if cfg.sampling:
             successful = Transitions.concat(good) if good else pre.take(np.arange(0))
+            successful, new_held = self._split(successful)
             if self.cells is None:
                 p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
                 sampled = build_sampled_set(pre, successful, p_success, state.sampled_set_size, state.rng)
@@ -270,9 +288,11 @@ class IUPETrainer:
                     self.cells.assign(pre.actions), self.cells.assign(successful.actions),
                 )  # fmt: skip
         else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
-            sampled = Transitions.concat([pre, *episodes])
+            rollouts, new_held = self._split(Transitions.concat(episodes))
+            sampled = Transitions.concat([pre, rollouts])
+        held = Transitions.concat([state.pre_held, new_held])
         start = time.perf_counter()
-        self.train_idm(sampled)
+        self.train_idm(sampled, held)
         state.idm_s += time.perf_counter() - start
         self.stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
         record = {
@@ -284,6 +304,7 @@ class IUPETrainer:
             "selected": selected,
             "best_success": state.best_success,
             "sampled_set_size": len(sampled),
+            "idm_held_out": len(held),
             "successful_transitions": int(sum(len(e) for e in good)),
             self.idm_metric: self.stats[self.idm_metric],
             "label_non_map": self.stats.get("label_non_map", 0.0),
@@ -354,13 +375,16 @@ class IUPETrainer:
         """How the IDM is scored on held-out I^s: label agreement (discrete) or R² (continuous)."""
         return "idm_r2" if self.config.is_continuous else "idm_accuracy"
 
-    def train_idm(self, data: Transitions) -> None:
-        """Train the IDM on I^s (90%) and score it on the held-out 10% (``idm_metric``)."""
+    def _split(self, data: Transitions) -> tuple[Transitions, Transitions]:
+        train, held = held_out_split(len(data), self.state.rng)
+        return data.take(train), data.take(held)
+
+    def train_idm(self, data: Transitions, held_out: Transitions) -> None:
+        """Train the IDM on I^s (``data``, all of it) and score it on ``held_out`` (``idm_metric``), transitions
+        of which ``data`` holds no copy."""
         policy, state = self.policy, self.state
         rng, device, batch_size = state.rng, self.device, self.config.idm_batch_size
-        order = rng.permutation(len(data))
-        held = order[: max(1, len(order) // 10)]
-        train = order[len(held) :]
+        train = rng.permutation(len(data))
         to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
         policy.train()
         for _ in range(self.config.idm_epochs):
@@ -377,13 +401,16 @@ class IUPETrainer:
         policy.eval()
         with torch.no_grad():
             predicted = []
-            for start in range(0, len(held), 1024):
-                idx = held[start : start + 1024]
-                output = policy.idm_output(to(data.states[idx]), to(data.next_states[idx]))
+            for start in range(0, len(held_out), 1024):
+                part = held_out.take(np.arange(start, min(start + 1024, len(held_out))))
+                output = policy.idm_output(to(part.states), to(part.next_states))
                 predicted.append(policy.idm_head.mode(output).cpu().numpy())
         policy.train()
-        predicted, true = np.concatenate(predicted), data.actions[held]
-        score = r_squared(predicted, true) if self.config.is_continuous else float((predicted == true).mean())
+        if predicted:
+            predicted, true = np.concatenate(predicted), held_out.actions
+            score = r_squared(predicted, true) if self.config.is_continuous else float((predicted == true).mean())
+        else:  # a single pre-demonstration transition: nothing to hold out
+            score = float("nan")
         self.stats.update({"idm_loss": float(loss.detach()), self.idm_metric: score})
 
     # ------------------------------------------------------------ checkpoints
