@@ -256,19 +256,23 @@ class Benchmark:
         threads: int = 0,
     ) -> list[Run]:
         """The unrecorded runs of ``methods`` × ``seeds`` (a run is recorded when a row with its table, env, method,
-        seed and configuration key exists), collecting the datasets and measuring the references first."""
-        data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet, "bc" in methods)
+        seed and configuration key exists), after measuring the references (and scoring recorded rows against
+        them); the datasets are collected where a run to train needs them."""
         references = self.references(preset)
         with self._lock:
             self.rescore(table, name, references)
         runs = [
-            Run(table, name, preset, method, seed, data, references, self.quick)
+            Run(table, name, preset, method, seed, {}, references, self.quick)
             for method in methods
             for seed in ([None] if method in ("expert", "random") else seeds)
         ]
         pending = [run for run in runs if not self._done(run)]
         with self._lock:  # rows of an older configuration of a pending run are replaced, not kept beside it
             self.forget([(run.table, run.name, run.method, run.seed) for run in pending])
+        if any(run.method not in ("expert", "random") for run in pending):  # the built-in agents need no data
+            data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet, "bc" in methods)
+            for run in pending:
+                run.data = data
         return pending
 
     def plan_all(self, requests: list[dict], jobs: int = 1) -> list[Run]:
