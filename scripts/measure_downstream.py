@@ -65,14 +65,19 @@ def lunar_effect(actions: np.ndarray) -> np.ndarray:
     return np.stack([main, side], axis=1)
 
 
-def label_quality(env: str, truth: Path, relabelled: Path) -> dict:
+def label_quality(env: str, truth: Path, relabelled: Path, held_out_from: int) -> dict:
+    """The labels against the true actions on the episodes the IDM never trained on (``held_out_from``…), frames
+    with a successor."""
+
     def inner_actions(root: Path) -> np.ndarray:
         dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
         episodes = column_array(dataset.hf_dataset, "episode_index")
-        return action_array(dataset)[np.append(episodes[:-1] == episodes[1:], False)]
+        keep = np.append(episodes[:-1] == episodes[1:], False) & (episodes >= held_out_from)
+        return action_array(dataset)[keep]
 
     true, labels = inner_actions(truth), inner_actions(relabelled)
     quality = {
+        "scored_episodes": "held out (not the IDM's training episodes)",
         "frames": int(len(true)),
         "r2": r_squared(labels, true),
         "r2_per_dim": [r_squared(labels[:, i], true[:, i]) for i in range(true.shape[1])],
@@ -115,8 +120,10 @@ def measure(
         f"--dataset.root={relabelled}")  # fmt: skip
     quality = {"env": env, "idm_context": k, "labelled_episodes": n_labelled, "episodes": episodes,
                "idm_steps": idm_steps, "relabel_s": time.perf_counter() - start,
-               **label_quality(env, truth, relabelled)}  # fmt: skip
+               **label_quality(env, truth, relabelled, held_out_from=n_labelled)}  # fmt: skip
     print(json.dumps(quality), flush=True)
+    if not arms:
+        return [], quality
     env_cfg = env_config_from_settings({"type": env})
     datasets = {"true": truth, "idm": relabelled}
     runs = [(labels, datasets[labels], seed) for labels in arms for seed in seeds]
@@ -153,7 +160,10 @@ def main() -> None:
     parser.add_argument("--eval_episodes", type=int, default=50)
     parser.add_argument("--jobs", type=int, default=2, help="ACT runs trained at a time (one thread each)")
     parser.add_argument("--idm_context", type=int, default=1, help="the IDM's window k (--policy.idm_context)")
-    parser.add_argument("--arms", nargs="+", default=["true", "idm"], choices=["true", "idm"])
+    parser.add_argument(
+        "--arms", nargs="*", default=["true", "idm"], choices=["true", "idm"],
+        help="ACT arms to train (none: measure the labels only)",
+    )  # fmt: skip
     parser.add_argument("--work", default="outputs/measure-downstream")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -162,7 +172,8 @@ def main() -> None:
     command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
     for env in args.envs:
         rows, quality = measure(env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms)
-        update(Path(args.out), "downstream", rows, command, key=("env", "labels", "idm_context", "seed"))
+        if rows:
+            update(Path(args.out), "downstream", rows, command, key=("env", "labels", "idm_context", "seed"))
         update(Path(args.out), "downstream_labels", [quality], command, key=("env", "idm_context"))
     print(render(Path(args.out)))
 

@@ -1,10 +1,11 @@
 """Label accuracy of the IDMs of full IUPE runs against the true actions. Writes the "accuracy" section of
 benchmarks/relabel.json and renders benchmarks/relabel.md (throughput: scripts/measure_throughput.py).
 
-    python scripts/measure_relabel.py
-Checkpoints come from normal training runs: the benchmark's (IUPE, seed 0) or `python scripts/demo.py --env <env>`.
-Expert data for the accuracy check is collected on seeds 700000… (never used in training), with its actions,
-then stripped of them with LeRobot's `remove_feature`, relabelled, and compared on every frame with a successor.
+    python scripts/measure_relabel.py [--envs cartpole mountaincar acrobot maze5]
+Each checkpoint is trained here, exactly as the benchmark's Table 1 IUPE seed-0 run (its preset, datasets and
+budget), with today's code. Expert data for the accuracy check is collected with the preset's env settings on
+seeds 700000… (never used in training), with its actions, then stripped of them with LeRobot's `remove_feature`,
+relabelled, and compared on every frame with a successor.
 """
 
 import argparse
@@ -18,19 +19,14 @@ import numpy as np
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
 
-from lerobot_iupe.benchmark import CHECKPOINT
+from lerobot_iupe.benchmark import CHECKPOINT, PRESETS, Benchmark
 from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
 
 BIN = Path(sys.executable).parent
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import render, update  # noqa: E402
 
-ENVS = {  # demo preset -> collect flags
-    "cartpole": ["--env.type=cartpole"],
-    "mountaincar": ["--env.type=mountaincar"],
-    "acrobot": ["--env.type=acrobot"],
-    "maze5": ["--env.type=maze", "--env.size=5"],
-}
+ENVS = ["cartpole", "mountaincar", "acrobot", "maze5"]
 
 
 def run(*args: str) -> str:
@@ -39,17 +35,12 @@ def run(*args: str) -> str:
     return result.stdout
 
 
-def checkpoint_of(env: str) -> Path:
-    """The IUPE seed-0 checkpoint of the benchmark's Table 1 run if there is one, else a demo run's (trained now
-    when missing)."""
-    benchmark = Path("outputs/benchmark/runs/table1") / env / "iupe-s0" / CHECKPOINT
-    if benchmark.exists():
-        return benchmark
-    out = Path("outputs/demo" if env == "cartpole" else f"outputs/demo-{env}")
-    checkpoint = out / "runs/demo" / env / "iupe-s0" / CHECKPOINT
-    if not checkpoint.exists():
-        subprocess.run([sys.executable, "scripts/demo.py", "--env", env], check=True)
-    return checkpoint
+def checkpoint_of(env: str, work: Path) -> Path:
+    """The benchmark's Table 1 IUPE seed-0 run of ``env``, trained in ``work`` (kept there: a second call reuses it;
+    its 10-episode evaluation is not used here)."""
+    bench = Benchmark(work, eval_episodes=10, quiet=True)
+    bench.execute(bench.plan("table1", env, PRESETS[env], ["iupe"], [0]))
+    return work / "runs" / "table1" / env / "iupe-s0" / CHECKPOINT
 
 
 def actions_with_successor(root: Path) -> np.ndarray:
@@ -60,14 +51,17 @@ def actions_with_successor(root: Path) -> np.ndarray:
 
 def accuracy(env: str, work: Path, episodes: int) -> dict:
     truth, stripped = work / f"{env}-truth", work / f"{env}-stripped"
+    shutil.rmtree(truth, ignore_errors=True)
+    shutil.rmtree(stripped, ignore_errors=True)
     run(
-        "lerobot-iupe-collect", *ENVS[env], "--agent=expert", f"--episodes={episodes}", "--seed=700000",
+        "lerobot-iupe-collect", *PRESETS[env].env_flags(), "--agent=expert", f"--episodes={episodes}", "--seed=700000",
+        *PRESETS[env].data.data_flags(),
         "--keep_actions=true", f"--dataset.repo_id=local/{truth.name}", f"--dataset.root={truth}",
     )  # fmt: skip
     source = LeRobotDataset(f"local/{truth.name}", root=truth, video_backend="pyav")
     remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
     write_iupe_meta(stripped, {**read_iupe_meta(truth), "has_actions": False})
-    checkpoint = checkpoint_of(env)
+    checkpoint = checkpoint_of(env, work / "benchmark")
     start = time.perf_counter()
     run(
         "lerobot-iupe-relabel", f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{stripped.name}",
@@ -88,15 +82,15 @@ def accuracy(env: str, work: Path, episodes: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=50, help="expert episodes per env for the accuracy check")
+    parser.add_argument("--envs", nargs="+", default=ENVS, choices=ENVS)
     parser.add_argument("--work", default="outputs/measure-relabel")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
     work = Path(args.work)
-    shutil.rmtree(work, ignore_errors=True)
-    work.mkdir(parents=True)
-    accuracies = [accuracy(env, work, args.episodes) for env in ENVS]
+    work.mkdir(parents=True, exist_ok=True)
+    accuracies = [accuracy(env, work, args.episodes) for env in args.envs]
     command = " ".join(["python", "scripts/measure_relabel.py", *sys.argv[1:]])
-    update(Path(args.out), "accuracy", accuracies, command)
+    update(Path(args.out), "accuracy", accuracies, command, key=("env",))
     print(render(Path(args.out)))
 
 

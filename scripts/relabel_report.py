@@ -121,9 +121,10 @@ def render(out: Path) -> str:
         lines += ["### Reading", "", *[f"- {f}" for f in data["downstream_findings"]], ""]
     if data.get("downstream_labels"):
         lines += [
-            "### The labels of (b), against the stripped true actions (frames with a successor)",
+            "### The labels of (b), against the stripped true actions (frames with a successor, on the episodes "
+            "the IDM did not train on)",
             "",
-            "| env | k | labelled episodes | frames | R² | R² per dimension | R² of the effect "
+            "| env | k | IDM trained on (episodes) | scored frames | R² | R² per dimension | R² of the effect "
             "| engines on/off agree |",
             "|---|---|---|---|---|---|---|---|",
         ]
@@ -131,7 +132,8 @@ def render(out: Path) -> str:
             per_dim = ", ".join(_f(x) for x in q["r2_per_dim"])
             lines.append(
                 f"| {q['env']} | {q.get('idm_context', 0)} "
-                f"| {q['labelled_episodes']} of {q['episodes']} | {q['frames']} | {_f(q['r2'])} | "
+                f"| {q['labelled_episodes']} of {q['episodes']} | {q['frames']}"
+                f"{'' if q.get('scored_episodes') else ' (all episodes: before held-out scoring)'} | {_f(q['r2'])} | "
                 f"{per_dim} | {_f(q.get('effect_r2'))} | "
                 f"{', '.join(_f(x) for x in q['engine_agreement']) if 'engine_agreement' in q else '–'} |"
             )

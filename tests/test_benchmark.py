@@ -7,6 +7,7 @@ import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
 
 from lerobot_iupe.benchmark import PRESETS, Run, method_flags, read_training_run
+from lerobot_iupe.benchmark.report import _cell
 
 LAYOUTS = ("demo", "heldout")
 
@@ -110,3 +111,8 @@ def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):
     cycles, timing = read_training_run(checkpoint, log, steps=200)
     assert [c["cycle"] for c in cycles] == [1, 2, 3, 4] and [c["step"] for c in cycles] == [50, 100, 150, 200]
     assert timing == {"rollouts_s": cycles[-1]["rollouts_s"], "idm_s": cycles[-1]["idm_s"], "data_loading_s": 20.0}
+
+
+def test_cells_give_the_sample_standard_deviation_over_seeds():
+    rows = [{"P": p, "AER": 10 * p} for p in (0.0, 1.0, 2.0)]
+    assert _cell(rows) == "1.000 ± 1.000 / 10.000 ± 10.000 (n=3)"  # ddof = 1 (ddof = 0 would give 0.816)
