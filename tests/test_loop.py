@@ -175,6 +175,21 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     assert all(torch.equal(latest[k], v) for k, v in policy.state_dict().items())
 
 
+def test_rollouts_play_only_the_last_rollout_layouts_of_the_expert_dataset(maze_expert, maze_random, monkeypatch):
+    demonstrated = list(dict.fromkeys(read_iupe_meta(maze_expert)["layout_ids"]))
+    policy = build(maze_expert, maze_random, rollout_layouts=2)
+    played = []
+    monkeypatch.setattr(training, "run_episodes", Spy(training.run_episodes))
+    train_steps(policy, maze_expert, 4)  # two cycles of 4 rollouts
+    for (_, _, _, options), _, _ in training.run_episodes.calls:
+        played += [option["layout_id"] for option in options]
+    assert len(demonstrated) > 2 and len(played) == 8
+    assert set(played) == set(demonstrated[-2:])  # the selection never plays the other demonstrated layouts
+    too_many = build(maze_expert, maze_random, rollout_layouts=len(demonstrated))
+    with pytest.raises(ValueError, match=f"--policy.rollout_layouts={len(demonstrated)} must be below"):
+        too_many.forward(frame_batch(maze_expert, 4))
+
+
 def test_without_exploration_labels_and_rollouts_take_the_argmax(maze_expert, maze_random, monkeypatch):
     policy = build(maze_expert, maze_random, exploration=False)
     rollouts = Spy(policy.trainer.rollout)

@@ -72,6 +72,7 @@ def relabel_env(root, env: dict):
         ("pre_other_action_count", "disagree on the env type: 'mountaincar' vs 'cartpole'"),
         ("env_mismatch", "but (6,) in env acrobot"),
         ("missing_pre", "is not a LeRobot dataset"),
+        ("rollout_layouts_without_layouts", "--policy.rollout_layouts=2 must be below the number of distinct layouts"),
     ],
 )
 def test_bad_training_input_fails_before_training(case, message, cartpole_expert, cartpole_random, tmp_path):
@@ -91,6 +92,8 @@ def test_bad_training_input_fails_before_training(case, message, cartpole_expert
         policy = {"env_settings": {"type": "acrobot"}}
     elif case == "missing_pre":
         pre = tmp_path / "does-not-exist"
+    elif case == "rollout_layouts_without_layouts":  # CartPole has no layouts to keep apart
+        policy = {"rollout_layouts": 2}
     if case == "env_mismatch":  # through lerobot-train itself; the other cases where lerobot-train raises them
         out = tmp_path / "train"
         flags = [f"--policy.{k}={json.dumps(v)}" for k, v in policy.items()]

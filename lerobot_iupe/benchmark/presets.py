@@ -83,8 +83,24 @@ class EnvPreset:
     def is_maze(self) -> bool:
         return self.env["type"] == "maze"
 
+    @property
+    def rollout_layouts(self) -> int:
+        """Mazes: how many of the expert dataset's layouts (its last ones) the rollouts, and so the model
+        selection, play (``--policy.rollout_layouts``); 0 = all."""
+        return int(self.train.policy.get("rollout_layouts", 0))
+
     def env_config(self, layouts: str | None = None) -> EnvConfig:
-        return env_config_from_settings({**self.env, **({"layouts": layouts} if layouts else {})})
+        """The evaluation env; demonstration layouts: only those the rollouts never play (the first ones)."""
+        settings = {**self.env, **({"layouts": layouts} if layouts else {})}
+        if layouts == "demo" and self.rollout_layouts:
+            settings["num_layouts"] = self.data.expert_episodes - self.rollout_layouts
+        return env_config_from_settings(settings)
+
+    def scored_episodes(self, layouts: str | None, episodes: int) -> int:
+        """Evaluation episodes on a layout set: at most one per layout on the demonstration layouts left to it."""
+        if layouts == "demo" and self.rollout_layouts:
+            return min(episodes, self.data.expert_episodes - self.rollout_layouts)
+        return episodes
 
     def env_flags(self) -> list[str]:
         return [f"--env.{k}={v}" for k, v in self.env.items()]
@@ -109,6 +125,10 @@ def digest(value) -> str:
 VECTOR_BUDGET = TrainBudget(steps=400, batch_size=128, cycle_steps=100)
 # Mazes at 3 px per maze block (2N+1 blocks a side; 10×10 at 2 px) stored as PNG frames: the CNN's cost grows with
 # the pixel count (IDM step of 64 at 21 px 15 ms, at 63 px 61 ms); LeRobot's loader reads a PNG 8x faster than video.
+# Mazes follow the paper's protocol (evaluation on the demonstration layouts), but the model is selected on
+# rollouts: those play the last 20 of the 100 demonstration layouts, and the demonstration-layout evaluation plays
+# the other 80, so selection never sees an evaluated layout.
+SELECT_APART = {"rollout_layouts": "20"}
 PRESETS = {
     "cartpole": EnvPreset({"type": "cartpole"}, DataSettings(10, 400), VECTOR_BUDGET),
     "acrobot": EnvPreset({"type": "acrobot"}, DataSettings(10, 40), VECTOR_BUDGET),
@@ -118,17 +138,17 @@ PRESETS = {
     "maze3": EnvPreset(
         {"type": "maze", "size": 3, "image_size": 21},
         DataSettings(100, 400, random_start=True, random_max_steps=15, video=False),
-        TrainBudget(1000, 64, 200),
+        TrainBudget(1000, 64, 200, SELECT_APART),
     ),
     "maze5": EnvPreset(
         {"type": "maze", "size": 5, "image_size": 33},
         DataSettings(100, 400, random_start=True, random_max_steps=25, video=False),
-        TrainBudget(1500, 64, 250),
+        TrainBudget(1500, 64, 250, SELECT_APART),
     ),
     "maze10": EnvPreset(
         {"type": "maze", "size": 10, "image_size": 42},
         DataSettings(100, 400, random_start=True, random_max_steps=60, video=False),
-        TrainBudget(2000, 64, 250, {"idm_epochs": "2"}),
+        TrainBudget(2000, 64, 250, {"idm_epochs": "2", **SELECT_APART}),
     ),
 }
 # Continuous actions (the "continuous" table): 10 rollout episodes per cycle, since a hovering lander plays all

@@ -9,6 +9,7 @@ stopped; the report (``report.py``) is rebuilt from all records on every call.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import re
@@ -127,7 +128,10 @@ class Run:
     def config_key(self, eval_episodes: int) -> str:
         """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
         train = [] if self.method in ("expert", "random") else self.train_flags
-        return digest([self.preset.data_key(self.quick), train, eval_episodes, self.preset.eval_modes])
+        key = [self.preset.data_key(self.quick), train, eval_episodes, self.preset.eval_modes]
+        if self.preset.rollout_layouts:  # the evaluated layouts depend on it (also for the built-in agents)
+            key.append([self.preset.scored_episodes(layouts, eval_episodes) for layouts in self.preset.layouts])
+        return digest(key)
 
     @property
     def cost(self) -> float:
@@ -209,11 +213,13 @@ class Benchmark:
     def agent_evaluation(self, agent: str, preset: EnvPreset, layouts: str | None) -> dict:
         """A built-in agent on the scored episodes of ``preset`` (evaluated once per env, layouts and episode
         count: every table of an env shares it)."""
-        key = digest([agent, preset.env, layouts, self.eval_episodes])
+        episodes = preset.scored_episodes(layouts, self.eval_episodes)
+        env_cfg = preset.env_config(layouts)
+        key = digest([agent, env_cfg.type, repr(env_cfg), episodes])
         with self._lock:
             if key in self._agents:
                 return self._agents[key]
-        overall = evaluate_agent(agent, preset.env_config(layouts), self.eval_episodes)
+        overall = evaluate_agent(agent, env_cfg, episodes)
         with self._lock:
             return self._agents.setdefault(key, overall)
 
@@ -229,12 +235,17 @@ class Benchmark:
             for layouts in preset.layouts
         }
 
-    def rescore(self, table: str, name: str, references: dict[str | None, tuple[float, float]]) -> int:
+    def rescore(
+        self, table: str, name: str, preset: EnvPreset, references: dict[str | None, tuple[float, float]]
+    ) -> int:
         """Score the recorded rows of ``table``/``name`` against ``references`` (P from each row's own AER), where
-        they were scored against others; returns how many rows changed. Rewritten whole, as ``forget``."""
+        they were scored against others on the same episodes; returns how many rows changed. A row evaluated on
+        other episodes (an older layout split) keeps its own. Rewritten whole, as ``forget``."""
         records, changed = self.records(), 0
         for record in records:
             if (record["table"], record["env"]) != (table, name) or record["eval_layouts"] not in references:
+                continue
+            if record["eval_episodes"] != preset.scored_episodes(record["eval_layouts"], self.eval_episodes):
                 continue
             r_expert, r_random = references[record["eval_layouts"]]
             if (record["R_expert"], record["R_random"]) != (r_expert, r_random):
@@ -258,9 +269,11 @@ class Benchmark:
         """The unrecorded runs of ``methods`` × ``seeds`` (a run is recorded when a row with its table, env, method,
         seed and configuration key exists), after measuring the references (and scoring recorded rows against
         them); the datasets are collected where a run to train needs them."""
+        if self.quick:  # one budget for training and evaluation settings alike (no layout split in a smoke test)
+            preset = dataclasses.replace(preset, train=QUICK_BUDGET)
         references = self.references(preset)
         with self._lock:
-            self.rescore(table, name, references)
+            self.rescore(table, name, preset, references)
         runs = [
             Run(table, name, preset, method, seed, {}, references, self.quick)
             for method in methods
@@ -349,8 +362,8 @@ class Benchmark:
                 for lay in preset.layouts:
                     for mode in preset.eval_modes:
                         start = time.perf_counter()
-                        env_cfg = preset.env_config(lay)
-                        evals[lay, mode] = evaluate_checkpoint(out / CHECKPOINT, env_cfg, episodes, mode)
+                        env_cfg, n = preset.env_config(lay), preset.scored_episodes(lay, episodes)
+                        evals[lay, mode] = evaluate_checkpoint(out / CHECKPOINT, env_cfg, n, mode)
                         timing[f"evaluation_{lay or 'env'}_{mode}_s"] = time.perf_counter() - start
         with self._lock:
             for (lay, mode), overall in evals.items():
@@ -363,7 +376,8 @@ class Benchmark:
                         "P": performance([aer], r_expert, r_random), "AER": aer,
                         "success_rate": None if overall["pc_success"] is None else overall["pc_success"] / 100,
                         "selection": selection, "train_seconds": train_seconds,
-                        "eval_episodes": episodes, "R_expert": r_expert, "R_random": r_random,
+                        "eval_episodes": preset.scored_episodes(lay, episodes), "R_expert": r_expert,
+                        "R_random": r_random,
                         "timing": timing, "cycles": cycles,
                     }
                 )  # fmt: skip
@@ -373,10 +387,12 @@ def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
     """How a run's checkpoint was chosen, in words (recorded with each of its rows)."""
     if run.method == "bc" or not cycles:
         return "the last step's weights (no selection)"
-    episodes = json.loads((checkpoint / "config.json").read_text())["rollout_episodes"]
-    where = (
-        "the expert dataset's own (demonstration) layouts"
-        if run.preset.is_maze
-        else f"seeds ≥ 1,000,000 (evaluation: {EVAL_SEED}…)"
-    )
+    config = json.loads((checkpoint / "config.json").read_text())
+    episodes, layouts = config["rollout_episodes"], config.get("rollout_layouts", 0)
+    if not run.preset.is_maze:
+        where = f"seeds ≥ 1,000,000 (evaluation: {EVAL_SEED}…)"
+    elif layouts:
+        where = f"the last {layouts} demonstration layouts, which the demonstration-layout evaluation does not play"
+    else:
+        where = "the expert dataset's own (demonstration) layouts, which the evaluation also plays"
     return f"best rollout success of a cycle ({len(cycles)} cycles × {episodes} episodes, latest on ties), on {where}"

@@ -80,6 +80,9 @@ class IUPEConfig(PreTrainedConfig):
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
     rollout_episodes: int = 20
+    # Mazes: the rollouts (whose success also selects the model) play only the expert dataset's last K layouts;
+    # 0 = all of them. An evaluation on the other layouts then never plays a layout the selection saw.
+    rollout_layouts: int = 0
     # IDM epochs per cycle and batch size; 0 = 2 and 256 for vector states (10 epochs for continuous actions), 5
     # and 64 for images (a CNN needs more, smaller steps: on Maze 5x5, 3 epochs of batch 256 stayed at chance).
     idm_epochs: int = 0
@@ -116,6 +119,8 @@ class IUPEConfig(PreTrainedConfig):
         super().__post_init__()
         if self.cycle_steps <= 0 or self.rollout_episodes <= 0:
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
+        if self.rollout_layouts < 0:
+            raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")
         if self.eval_mode not in EVAL_MODES:
             raise ValueError(f"--policy.eval_mode must be one of {list(EVAL_MODES)}, got {self.eval_mode!r}")
         if self.idm_context is not None and self.idm_context < 0:

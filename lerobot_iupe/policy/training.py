@@ -109,7 +109,7 @@ class IUPETrainer:
         self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
         self.selected_weights: dict[str, Tensor] | None = None  # best rollout success so far (latest on ties)
         self.envs: list = []  # rollout envs, created once and reused by every cycle
-        self.layouts: list[int] = []  # maze: the expert dataset's layout ids, cycled through by rollouts
+        self.layouts: list[int] = []  # maze: the layout ids rollouts cycle through (--policy.rollout_layouts)
         self.env_cfg = None  # the rollout env, set by check_inputs
         self.env_keys: list[str] = []  # the env observations the policy reads (features_map: env key → its key)
         self.cells: ActionCells | None = None  # continuous actions: the sampling rule's action classes
@@ -158,7 +158,14 @@ class IUPETrainer:
                 f"the pre-demonstrations {cfg.pre_demos_repo_id} have {kind[continuous_actions]} actions but env "
                 f"{self.env_cfg.type} has {kind[cfg.is_continuous]} ones"
             )
-        self.layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
+        layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
+        if cfg.rollout_layouts and cfg.rollout_layouts >= len(set(layouts)):
+            raise ValueError(
+                f"--policy.rollout_layouts={cfg.rollout_layouts} must be below the number of distinct layouts of the "
+                f"expert dataset at {meta.root} ({len(set(layouts))}), so that some are never rolled out on"
+                + ("" if layouts else ": it records none (meta/iupe.json layout_ids; maze datasets only)")
+            )
+        self.layouts = list(dict.fromkeys(layouts))[-cfg.rollout_layouts :] if cfg.rollout_layouts else layouts
         return pre
 
     def use_env(self, env_cfg) -> None:
