@@ -142,3 +142,14 @@ def test_held_out_split_is_a_disjoint_cover_with_a_tenth_held(n):
     assert np.array_equal(again[1], held) and not np.array_equal(
         held_out_split(1000, np.random.default_rng(1))[1], held_out_split(1000, np.random.default_rng(0))[1]
     )
+
+
+def test_held_out_split_never_takes_every_item_of_a_class_from_training():
+    classes = np.array([0] + [1] * 49)  # the rule may ask for class 0: its only item must stay in training
+    for seed in range(50):
+        plain_train, plain_held = held_out_split(50, np.random.default_rng(seed))
+        train, held = held_out_split(50, np.random.default_rng(seed), classes=classes)
+        assert 0 in train and sorted([*train, *held]) == list(range(50))
+        if 0 not in plain_held:  # the same split as without classes whenever no class is lost
+            assert np.array_equal(train, plain_train) and np.array_equal(held, plain_held)
+    assert any(0 in held_out_split(50, np.random.default_rng(seed))[1] for seed in range(50))  # the case occurs

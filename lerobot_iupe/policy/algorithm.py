@@ -144,12 +144,21 @@ class ActionCells:
         return out
 
 
-def held_out_split(n: int, rng: np.random.Generator, fraction: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+def held_out_split(
+    n: int, rng: np.random.Generator, fraction: float = 0.1, classes: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Indices of ``n`` items split into a training part and a held-out part (``fraction`` of them, at least one
-    when ``n`` > 1). Split before I^s is drawn with replacement, so no copy of a held-out item is trained on."""
+    when ``n`` > 1). Split before I^s is drawn with replacement, so no copy of a held-out item is trained on.
+    With ``classes``, a class whose items all fell in the held-out part keeps them for training instead: the
+    sampling rule draws each class it gives a share from the training part."""
     order = rng.permutation(n)
     held = int(n * fraction) if n * fraction >= 1 else min(1, n - 1)
-    return np.sort(order[held:]), np.sort(order[:held])
+    train, held_out = order[held:], order[:held]
+    if classes is not None:
+        classes = np.asarray(classes)
+        back = np.isin(classes[held_out], np.setdiff1d(classes[held_out], classes[train]))
+        train, held_out = np.concatenate([train, held_out[back]]), held_out[~back]
+    return np.sort(train), np.sort(held_out)
 
 
 def r_squared(predicted: np.ndarray, true: np.ndarray) -> float:

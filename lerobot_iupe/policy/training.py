@@ -235,7 +235,8 @@ class IUPETrainer:
         # enter I^s (and I_pre's held-out part), split off before I^s draws copies.
         if cfg.sampling:
             successful = Transitions.concat(good) if good else pre.take(np.arange(0))
-            successful, new_held = self._split(successful)
+            classes = successful.actions if self.cells is None else self.cells.assign(successful.actions)
+            successful, new_held = self._split(successful, classes)
             if self.cells is None:
                 p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
                 sampled = build_sampled_set(pre, successful, p_success, state.sampled_set_size, state.rng)
@@ -334,8 +335,8 @@ class IUPETrainer:
         """How the IDM is scored on held-out I^s: label agreement (discrete) or R² (continuous)."""
         return "idm_r2" if self.config.is_continuous else "idm_accuracy"
 
-    def _split(self, data: Transitions) -> tuple[Transitions, Transitions]:
-        train, held = held_out_split(len(data), self.state.rng)
+    def _split(self, data: Transitions, classes: np.ndarray | None = None) -> tuple[Transitions, Transitions]:
+        train, held = held_out_split(len(data), self.state.rng, classes=classes)
         return data.take(train), data.take(held)
 
     def train_idm(self, data: Transitions, held_out: Transitions) -> None:
