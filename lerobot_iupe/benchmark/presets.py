@@ -89,18 +89,21 @@ class EnvPreset:
         selection, play (``--policy.rollout_layouts``); 0 = all."""
         return int(self.train.policy.get("rollout_layouts", 0))
 
+    def _scored_demo_layouts(self, layouts: str | None) -> int:
+        """How many demonstration layouts are scored (those the rollouts never play); 0 = no split."""
+        return self.data.expert_episodes - self.rollout_layouts if layouts == "demo" and self.rollout_layouts else 0
+
     def env_config(self, layouts: str | None = None) -> EnvConfig:
         """The evaluation env; demonstration layouts: only those the rollouts never play (the first ones)."""
         settings = {**self.env, **({"layouts": layouts} if layouts else {})}
-        if layouts == "demo" and self.rollout_layouts:
-            settings["num_layouts"] = self.data.expert_episodes - self.rollout_layouts
+        if scored := self._scored_demo_layouts(layouts):
+            settings["num_layouts"] = scored
         return env_config_from_settings(settings)
 
     def scored_episodes(self, layouts: str | None, episodes: int) -> int:
         """Evaluation episodes on a layout set: at most one per layout on the demonstration layouts left to it."""
-        if layouts == "demo" and self.rollout_layouts:
-            return min(episodes, self.data.expert_episodes - self.rollout_layouts)
-        return episodes
+        scored = self._scored_demo_layouts(layouts)
+        return min(episodes, scored) if scored else episodes
 
     def env_flags(self) -> list[str]:
         return [f"--env.{k}={v}" for k, v in self.env.items()]

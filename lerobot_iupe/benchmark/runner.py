@@ -196,10 +196,14 @@ class Benchmark:
             else:
                 keep.append(record)
         if dropped:
-            partial = self.records_file.with_suffix(".jsonl.partial")
-            partial.write_text("".join(json.dumps(r) + "\n" for r in keep))
-            partial.replace(self.records_file)
+            self._rewrite(keep)
         return dropped
+
+    def _rewrite(self, records: list[dict]) -> None:
+        """Replace ``runs.jsonl`` whole (written beside it, then renamed), so an interruption loses nothing."""
+        partial = self.records_file.with_suffix(".jsonl.partial")
+        partial.write_text("".join(json.dumps(r) + "\n" for r in records))
+        partial.replace(self.records_file)
 
     def _save(self, record: dict) -> None:
         self.work.mkdir(parents=True, exist_ok=True)
@@ -215,7 +219,7 @@ class Benchmark:
         count: every table of an env shares it)."""
         episodes = preset.scored_episodes(layouts, self.eval_episodes)
         env_cfg = preset.env_config(layouts)
-        key = digest([agent, env_cfg.type, repr(env_cfg), episodes])
+        key = digest([agent, repr(env_cfg), episodes])
         with self._lock:
             if key in self._agents:
                 return self._agents[key]
@@ -252,9 +256,7 @@ class Benchmark:
                 record.update(R_expert=r_expert, R_random=r_random, P=performance([record["AER"]], r_expert, r_random))
                 changed += 1
         if changed:
-            partial = self.records_file.with_suffix(".jsonl.partial")
-            partial.write_text("".join(json.dumps(r) + "\n" for r in records))
-            partial.replace(self.records_file)
+            self._rewrite(records)
         return changed
 
     def plan(
