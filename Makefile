@@ -6,10 +6,10 @@ STAMP := $(VENV)/.installed
 export SDL_VIDEODRIVER ?= dummy
 export MPLBACKEND ?= Agg
 
-.PHONY: demo test lint install clean ffmpeg
+.PHONY: demo test lint install clean ffmpeg opengl
 
 $(STAMP): pyproject.toml .python-version
-	@$(MAKE) --no-print-directory ffmpeg
+	@$(MAKE) --no-print-directory ffmpeg opengl
 	@test -x $(PY) || python3 -m venv $(VENV) || { echo "could not create $(VENV): install Python $$(cat .python-version)"; exit 1; }
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
@@ -26,6 +26,15 @@ ffmpeg:
 	else echo "note: no FFmpeg and no root: video is decoded with PyAV (apt-get install ffmpeg for torchcodec)"; exit 0; fi; \
 	{ $$SUDO apt-get update -q >/dev/null && $$SUDO apt-get install -y -q --no-install-recommends ffmpeg >/dev/null; } \
 	|| echo "note: could not install FFmpeg: video is decoded with PyAV"
+
+# Offscreen OpenGL (EGL through Mesa, no GPU needed) renders the SO-101 front camera (--env.image_obs=true).
+# Best effort, as for FFmpeg: without it that env option says what to install.
+opengl:
+	@if ldconfig -p | grep -q libEGL_mesa; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ]; then SUDO=; elif sudo -n true 2>/dev/null; then SUDO=sudo; \
+	else echo "note: no EGL and no root: the SO-101 camera cannot render (apt-get install libegl1 libgl1-mesa-dri)"; exit 0; fi; \
+	{ $$SUDO apt-get update -q >/dev/null && $$SUDO apt-get install -y -q --no-install-recommends libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null; } \
+	|| echo "note: could not install EGL: the SO-101 camera cannot render"
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check lerobot_iupe lerobot_policy_iupe.py scripts tests

@@ -22,7 +22,7 @@ from lerobot.utils.constants import ACTION
 from tqdm.auto import tqdm
 
 from lerobot_iupe.data.storage import WrittenDataset, dataset_lock, resolve_root, staged_directory, write_iupe_meta
-from lerobot_iupe.envs.configs import IUPEEnvConfig, action_names
+from lerobot_iupe.envs.configs import IUPEEnvConfig, action_names, env_observation
 from lerobot_iupe.envs.rollout import Episode, agent_act, run_episodes
 from lerobot_iupe.experts import AGENTS, make_agent
 
@@ -47,8 +47,8 @@ class CollectConfig:
     keep_actions: bool = False
     # Maze only: start each episode from a random cell (random pre-demonstrations cover the maze better).
     random_start: bool = False
-    # Maze only: store frames as an MP4 video (true) or as PNG images inside the parquet files (false). LeRobot's
-    # training loader decodes a video frame per item (~2.4 ms with pyav) and a small PNG ~10x faster.
+    # Envs with cameras: store frames as an MP4 video (true) or as PNG images inside the parquet files (false).
+    # LeRobot's training loader decodes a video frame per item (~2.4 ms with pyav) and a small PNG ~10x faster.
     video: bool = True
     # Replace an existing dataset root (the old one is kept until the new one is complete).
     overwrite: bool = False
@@ -68,8 +68,11 @@ class CollectConfig:
             raise ValueError(f"--episodes must be a positive number of episodes, got {self.episodes}")
         if self.random_start and not self.env.is_image:
             raise ValueError("--random_start=true only applies to --env.type=maze")
-        if not self.video and not self.env.is_image:
-            raise ValueError("--video=false only applies to --env.type=maze (image observations)")
+        if not self.video and not self.env.has_cameras:
+            raise ValueError(
+                "--video=false only applies to envs with cameras (--env.type=maze, or so101_pickplace with "
+                "--env.image_obs=true)"
+            )
 
     @property
     def stores_actions(self) -> bool:
@@ -103,9 +106,9 @@ def dataset_features(env_cfg: IUPEEnvConfig, with_actions: bool, video: bool = T
 def _observation_entry(env_cfg: IUPEEnvConfig, observation: dict) -> dict:
     """The dataset keys of an env observation; vectors as float32 (``dataset_features``), images as they come."""
     return {
-        key: observation[env_key]
+        key: env_observation(observation, env_key)
         if env_cfg.features[env_key].type is FeatureType.VISUAL
-        else np.asarray(observation[env_key], dtype=np.float32)
+        else np.asarray(env_observation(observation, env_key), dtype=np.float32)
         for env_key, key in env_cfg.observation_keys.items()
     }
 
@@ -171,7 +174,7 @@ def collect(cfg: CollectConfig) -> tuple[Path, dict]:
             features=dataset_features(cfg.env, cfg.stores_actions, cfg.video),
             root=staged,
             robot_type=cfg.env.type,
-            use_videos=cfg.env.is_image and cfg.video,
+            use_videos=cfg.env.has_cameras and cfg.video,
         )
         try:
             stats = record_episodes(dataset, cfg)

@@ -237,9 +237,17 @@ def test_bad_continuous_settings_are_refused_naming_the_flag():
     unknown = IUPEConfig(input_features={"observation.state": state}, observation_keys=["observation.nothing"])
     with pytest.raises(ValueError, match=r"--policy.observation_keys names \['observation.nothing'\]"):
         unknown.validate_features()
-    mixed = IUPEConfig(
-        input_features={"observation.state": state, "observation.image": image},
-        observation_keys=["observation.image", "observation.state"],
+    small = PolicyFeature(type=FeatureType.VISUAL, shape=(3, 4, 4))
+    shared = IUPEConfig(
+        input_features={"observation.state": state, "observation.images.a": image, "observation.images.b": small},
+        shared_camera_encoder=True,
     )
-    with pytest.raises(ValueError, match="mixes images and vectors"):
-        mixed.validate_features()
+    with pytest.raises(ValueError, match="--policy.shared_camera_encoder=true needs cameras of one size"):
+        shared.validate_features()
+    outside = IUPEConfig(
+        input_features={"observation.state": state, "observation.image": image},
+        observation_keys=["observation.image"],
+        idm_observation_keys=["observation.state"],
+    )
+    with pytest.raises(ValueError, match=r"--policy.idm_observation_keys=\['observation.state'\] must name"):
+        outside.validate_features()

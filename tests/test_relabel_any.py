@@ -3,6 +3,7 @@
 actions, several observation keys, several cameras, a non-causal window, two processes — and the result passes
 `lerobot-doctor` and trains LeRobot's ACT."""
 
+import hashlib
 import json
 import shutil
 
@@ -237,13 +238,17 @@ def test_a_discrete_supervised_idm_from_lerobot_written_data(work):
     assert (inner(labels, dataset) == inner(true, dataset)).mean() >= 0.95
 
 
-def test_two_cameras_are_read_and_a_mismatch_is_named(work):
+def test_two_cameras_and_the_state_are_read_videos_untouched_and_a_mismatch_is_named(work):
     labelled, held_out = work / "cameras-labelled", work / "cameras-held-out"
     write_point_mass(labelled, episodes=3, seed=7, with_actions=True, cameras=True)
     checkpoint = train_idm(labelled, work / "cameras-idm", steps=4)
-    assert json.loads((checkpoint / "config.json").read_text())["observation_keys"] == list(CAMERAS)
+    keys = json.loads((checkpoint / "config.json").read_text())["observation_keys"]
+    assert keys == [*CAMERAS, OBS_STATE, OBS_ENV_STATE]  # the whole observation, cameras and vectors fused
     write_point_mass(held_out, episodes=2, seed=8, with_actions=False, cameras=True)
+    videos = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in held_out.rglob("*.mp4")}
     relabel(checkpoint, held_out)
+    assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in held_out.rglob("*.mp4")} == videos
+    assert len(videos) == 2  # labelling reads the videos and writes none
     dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out, video_backend="pyav")
     assert dataset.meta.features[ACTION]["dtype"] == "float32" and len(dataset.hf_dataset) == dataset.meta.total_frames
 

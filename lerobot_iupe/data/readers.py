@@ -15,8 +15,10 @@ import torch
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.datasets.video_utils import decode_video_frames
 from lerobot.utils.constants import ACTION
+from lerobot.utils.feature_utils import dataset_to_policy_features
 from torch import Tensor
 
+from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.data.transitions import Transitions
 
 
@@ -39,6 +41,12 @@ class Chunk:
     start: int
     frames: torch.Tensor
     ends_episode: bool
+
+
+def dataset_layout(meta: LeRobotDatasetMetadata, keys: list[str]) -> ObservationLayout:
+    """The layout of these keys as a policy sees them (cameras (C, H, W), by LeRobot's own conversion)."""
+    features = dataset_to_policy_features({k: meta.features[k] for k in keys})
+    return ObservationLayout(tuple(tuple(features[k].shape) for k in keys))
 
 
 def episode_bounds(meta: LeRobotDatasetMetadata) -> list[tuple[int, int]]:
@@ -110,16 +118,16 @@ def label_spans(
 
 class FrameReader:
     """Frames ``lo … hi`` of one episode for a set of observation keys, read from the files as needed (memory
-    follows the span, not the dataset): vectors concatenated (N, D), images uint8 (N, C, H, W) stacked as
-    channels. Vectors and PNG images come from Arrow slices of the parquet files, video by one seek per span."""
+    follows the span, not the dataset), joined in key order (``ObservationLayout.join``). Vectors and PNG images
+    come from Arrow slices of the parquet files, video by one seek per span."""
 
     def __init__(self, dataset: LeRobotDataset, keys: list[str], video_backend: str = "pyav"):
         self.dataset, self.meta, self.keys, self.backend = dataset, dataset.meta, keys, video_backend
+        self.layout = dataset_layout(dataset.meta, keys)
         self.first_index = int(column_array(dataset.hf_dataset, "index")[0]) if len(dataset.hf_dataset) else 0
 
     def frames(self, episode: int, first: int, lo: int, hi: int) -> Tensor:
-        parts = [self._read(key, episode, first, lo, hi) for key in self.keys]
-        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+        return self.layout.join([self._read(key, episode, first, lo, hi) for key in self.keys])
 
     def _read(self, key: str, episode: int, first: int, lo: int, hi: int) -> Tensor:
         dtype = self.meta.features[key]["dtype"]
@@ -165,9 +173,10 @@ def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
 
 def observation_array(dataset: LeRobotDataset, keys: str | list[str], video_backend: str = "pyav") -> np.ndarray:
     """Every frame's observation in dataset order: float32 states, or uint8 (N, C, H, W) images; several keys are
-    concatenated along the feature (channel) axis."""
+    joined in key order (``ObservationLayout.join``)."""
     if not isinstance(keys, str):
-        return np.concatenate([observation_array(dataset, k, video_backend) for k in keys], axis=1)
+        parts = [observation_array(dataset, k, video_backend) for k in keys]
+        return dataset_layout(dataset.meta, keys).join(parts)
     key = keys
     if dataset.meta.features[key]["dtype"] == "video":
         chunks = video_chunks(dataset.meta, key, 1024, video_backend)

@@ -13,7 +13,7 @@ import numpy as np
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGE, OBS_IMAGES, OBS_STATE
 
 from lerobot_iupe.envs.maze import HELDOUT_LAYOUT_START, default_max_steps
 
@@ -45,7 +45,12 @@ class IUPEEnvConfig(EnvConfig):
 
     @property
     def is_image(self) -> bool:
+        """The maze's image observation (layouts, random starts)."""
         return OBS_IMAGE in self.features_map.values()
+
+    @property
+    def has_cameras(self) -> bool:
+        return any(self.features[k].type is FeatureType.VISUAL for k in self.observation_keys)
 
     @property
     def observation_keys(self) -> dict[str, str]:
@@ -246,26 +251,44 @@ class SO101PickPlaceEnvConfig(ClassicEnvConfig):
         default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
     )
     action_names: tuple[str, ...] = ("dx", "dy", "dz", "grasp")
+    # The front camera (image_size × image_size RGB) → observation.images.front, in place of environment_state (the
+    # plugin's image observation: the block and goal are then seen, not read). Rendered by MuJoCo offscreen (EGL).
+    image_obs: bool = False
+    image_size: int = 64
+
+    def __post_init__(self):
+        if self.image_obs:
+            camera = PolicyFeature(type=FeatureType.VISUAL, shape=(self.image_size, self.image_size, 3))
+            self.features = {k: v for k, v in self.features.items() if k != "environment_state"} | {"front": camera}
+            self.features_map = {k: v for k, v in self.features_map.items() if k != "environment_state"} | {
+                "front": f"{OBS_IMAGES}.front"
+            }
 
     def validate(self) -> None:
         if self.action_scale <= 0:
             raise ValueError(f"--env.action_scale must be positive (metres per unit action), got {self.action_scale}")
         if self.episode_length < 1:
             raise ValueError(f"--env.episode_length must be at least 1, got {self.episode_length}")
+        if self.image_size < 16:
+            raise ValueError(f"--env.image_size must be at least 16 pixels, got {self.image_size}")
 
     @property
     def gym_kwargs(self) -> dict:
+        camera = {"image_obs": True, "image_size": self.image_size} if self.image_obs else {}
         return {
             **super().gym_kwargs,
             "action_scale": self.action_scale,
             "random_block_position": self.random_block_position,
+            **camera,
         }
 
     def settings(self) -> dict:
+        camera = {"image_obs": True, "image_size": self.image_size} if self.image_obs else {}
         return {
             **super().settings(),
             "action_scale": self.action_scale,
             "random_block_position": self.random_block_position,
+            **camera,
         }
 
 

@@ -10,6 +10,7 @@ from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTr
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
+from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.data.storage import read_iupe_meta
 from lerobot_iupe.envs.configs import (
     IUPEEnvConfig,
@@ -65,11 +66,14 @@ class IUPEConfig(PreTrainedConfig):
     # Continuous actions: the sampling rule's action classes are K cells of a k-means partition of the
     # pre-demonstrations' actions (benchmarks/findings.md measures K).
     action_cells: int = 16
-    # The observations the policy reads; None = every image key of the dataset if it has any, else every vector
-    # key (observation.state, observation.environment_state, …), concatenated; images of several cameras are
-    # stacked as channels (same size). Images and vectors together are not supported yet.
+    # The observations the policy reads, in this order (config.json records it); None = every camera of the dataset,
+    # then observation.state, observation.environment_state and any other vector key. Vectors alone are
+    # concatenated; a camera with other keys is fused: one image encoder per camera, one for the vectors, their
+    # features mixed by a linear layer (as LeRobot's ACT and Diffusion take cameras and state together).
     observation_keys: list[str] | None = None
-    # The observations the IDM reads, a subset of observation_keys (vectors only); None = all of them. An arm's
+    # Fused cameras share one image encoder (the cameras must then have one size); false = one encoder each.
+    shared_camera_encoder: bool = False
+    # The observations the IDM reads, a subset of observation_keys; None = all of them. An arm's
     # actions show in its own state: an SO-101 IDM trained on play that also read the block and goal labelled the
     # expert with R² < 0 on two dimensions (it never saw a carried block move), on observation.state alone ≥ 0.93.
     idm_observation_keys: list[str] | None = None
@@ -167,8 +171,22 @@ class IUPEConfig(PreTrainedConfig):
         return self.observation_keys[0]
 
     @property
+    def layout(self) -> ObservationLayout:
+        """How the observation keys are joined into one array per frame (``data.observation``)."""
+        return ObservationLayout(tuple(tuple(self.input_features[k].shape) for k in self.observation_keys))
+
+    def idm_layout(self) -> ObservationLayout:
+        keys = self.idm_observation_keys or self.observation_keys
+        return ObservationLayout(tuple(tuple(self.input_features[k].shape) for k in keys))
+
+    @property
     def is_image(self) -> bool:
-        return self.input_features[self.observation_keys[0]].type is FeatureType.VISUAL
+        """The policy reads a camera (alone or fused with other keys)."""
+        return any(self.input_features[k].type is FeatureType.VISUAL for k in self.observation_keys)
+
+    @property
+    def is_fused(self) -> bool:
+        return self.layout.fused
 
     @property
     def is_continuous(self) -> bool:
@@ -206,27 +224,27 @@ class IUPEConfig(PreTrainedConfig):
         if not self.observation_keys:
             if not images and not vectors:
                 raise ValueError(f"the expert dataset has no observation IUPE can read (features: {sorted(features)})")
-            self.observation_keys = images or vectors
+            self.observation_keys = images + vectors
         unknown = [k for k in self.observation_keys if k not in features]
         if unknown:
             raise ValueError(
                 f"--policy.observation_keys names {unknown}, which the dataset does not have "
                 f"(it has {images + vectors})"
             )
-        if any(k in images for k in self.observation_keys) and any(k in vectors for k in self.observation_keys):
-            raise ValueError(
-                f"--policy.observation_keys={self.observation_keys} mixes images and vectors; IUPE reads either "
-                f"image keys ({images}) or vector keys ({vectors})"
-            )
         if self.idm_observation_keys is not None:
             outside = [k for k in self.idm_observation_keys if k not in self.observation_keys]
-            if outside or not self.idm_observation_keys or self.is_image:
+            if outside or not self.idm_observation_keys:
                 raise ValueError(
                     f"--policy.idm_observation_keys={self.idm_observation_keys} must name one or more of the policy's "
-                    f"vector observation keys {self.observation_keys}"
+                    f"observation keys {self.observation_keys}"
                 )
-        if self.is_image and len({tuple(features[k].shape[1:]) for k in self.observation_keys}) > 1:
-            raise ValueError(f"the cameras {self.observation_keys} differ in size; IUPE stacks them and needs one size")
+        cameras = [k for k in self.observation_keys if k in images]
+        if self.shared_camera_encoder and len({tuple(features[k].shape) for k in cameras}) > 1:
+            shapes = {k: tuple(features[k].shape) for k in cameras}
+            raise ValueError(
+                f"--policy.shared_camera_encoder=true needs cameras of one size; they are {shapes} "
+                "(pass --policy.shared_camera_encoder=false for one encoder per camera)"
+            )
         # make_policy sets output_features from the dataset's actions: {} for state-only data.
         self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
         # Defaults that depend on the observation kind, resolved once so that config.json records what ran.

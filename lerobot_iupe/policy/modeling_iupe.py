@@ -18,7 +18,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
-from lerobot_iupe.policy.networks import VectorEncoder, make_action_head, make_image_encoder
+from lerobot_iupe.policy.networks import FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
 from lerobot_iupe.policy.training import IUPETrainer
 
 
@@ -31,36 +31,39 @@ class IUPEPolicy(PreTrainedPolicy):
         config.validate_features()
         config.resolve_dataset(dataset_meta)
         self.config = config
-        # Several vector keys are concatenated, several cameras stacked as channels (in observation_keys order).
-        shapes = [tuple(config.input_features[k].shape) for k in config.observation_keys]
-        hidden = config.hidden_dim
+        # The keys are joined into one array per frame in observation_keys order (config.layout): vectors
+        # concatenated, a single camera as it is, a camera with other keys packed flat and fused by FusedEncoder.
+        layout, hidden = config.layout, config.hidden_dim
         frames, history = len(config.idm_window), config.n_obs_steps
-        if config.is_image:
-            channels = sum(shape[0] for shape in shapes)
+        columns = [c for i, k in enumerate(config.observation_keys) for c in range(layout.size)[layout.columns(i)]
+                   if k in (config.idm_observation_keys or config.observation_keys)]  # fmt: skip
+        self.idm_columns = None if len(columns) == layout.size else torch.as_tensor(columns)
+        if layout.fused:
+            self.idm_encoder = FusedEncoder(config.idm_layout(), frames, config)
+            self.pm_encoder = FusedEncoder(layout, history, config)
+        elif config.is_image:
+            channels = layout.shapes[0][0]
             encoder = lambda c: make_image_encoder(  # noqa: E731
                 config.image_backbone, c, config.cnn_width, hidden, config.attention
             )
             self.idm_encoder, self.pm_encoder = encoder(frames * channels), encoder(history * channels)
-            self.idm_columns = None
         else:
-            dim = sum(shape[0] for shape in shapes)
-            starts = dict(zip(config.observation_keys, np.cumsum([0] + [shape[0] for shape in shapes]), strict=False))
-            idm_keys = config.idm_observation_keys or config.observation_keys
-            columns = [c for k in idm_keys for c in range(starts[k], starts[k] + config.input_features[k].shape[0])]
-            self.idm_columns = None if len(columns) == dim else torch.as_tensor(columns)
             self.idm_encoder = VectorEncoder(frames * len(columns), config.token_dim, hidden, config.attention)
-            self.pm_encoder = VectorEncoder(history * dim, config.token_dim, hidden, config.attention)
+            self.pm_encoder = VectorEncoder(history * layout.size, config.token_dim, hidden, config.attention)
         self.idm_head = make_action_head(hidden, config)
         self.pm_head = make_action_head(hidden, config)
-        state_dim = 1 if config.is_image else dim
+        # Per-value normalisation of a joined frame: vectors by the dataset's stats, fused cameras (already in
+        # [0, 1]) left as they are; a lone camera is scaled in _prepare.
+        state_dim = 1 if config.is_image and not layout.fused else layout.size
         self.register_buffer("state_mean", torch.zeros(state_dim))
         self.register_buffer("state_std", torch.ones(state_dim))
-        if not config.is_image and dataset_stats and all(k in dataset_stats for k in config.observation_keys):
-            stat = lambda name: np.concatenate(  # noqa: E731
-                [np.asarray(dataset_stats[k][name], dtype=np.float32).reshape(-1) for k in config.observation_keys]
-            )
-            self.state_mean.copy_(torch.as_tensor(stat("mean")))
-            self.state_std.copy_(torch.as_tensor(stat("std")).clamp_min(1e-3))
+        if state_dim > 1 or not config.is_image:
+            for i, key in enumerate(config.observation_keys):
+                if layout.visual[i] or not dataset_stats or key not in dataset_stats:
+                    continue
+                mean, std = (np.asarray(dataset_stats[key][n], dtype=np.float32).reshape(-1) for n in ("mean", "std"))
+                self.state_mean[layout.columns(i)] = torch.as_tensor(mean)
+                self.state_std[layout.columns(i)] = torch.as_tensor(std).clamp_min(1e-3)
         self.dataset_meta = dataset_meta
         self._history: Tensor | None = None  # select_action's last n_obs_steps observations (B, n, …)
         # lerobot-train seeds torch with its --seed just before building the policy: that seed drives IUPE's own
@@ -72,7 +75,7 @@ class IUPEPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------ the two models
 
     def _prepare(self, obs: Tensor) -> Tensor:
-        if self.config.is_image:
+        if self.config.is_image and not self.config.is_fused:
             return obs.float() / 255.0 if obs.dtype == torch.uint8 else obs.float()
         return (obs.float() - self.state_mean) / self.state_std
 
@@ -118,8 +121,8 @@ class IUPEPolicy(PreTrainedPolicy):
         return torch.cat([history[:, 1:], observation.unsqueeze(1)], dim=1)
 
     def observation(self, batch: dict[str, Tensor]) -> Tensor:
-        """The policy's input from a LeRobot batch: its observation keys, concatenated (channels for images)."""
-        return torch.cat([batch[k] for k in self.config.observation_keys], dim=1)
+        """The policy's input from a LeRobot batch: its observation keys joined in the recorded order."""
+        return self.config.layout.join([batch[k] for k in self.config.observation_keys])
 
     def idm_parameters(self) -> list[nn.Parameter]:
         return list(self.idm_encoder.parameters()) + list(self.idm_head.parameters())

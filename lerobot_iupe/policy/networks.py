@@ -1,7 +1,7 @@
-"""The networks of the IUPE policy: state and image encoders with SAGAN-style self-attention, and the action
-heads. A head turns encoder features into the parameters of a distribution over actions and knows how to score,
-draw and summarise actions of that distribution; ``CategoricalHead`` serves discrete action spaces, and a head for
-continuous actions is its sibling with the same methods."""
+"""The networks of the IUPE policy: state and image encoders with SAGAN-style self-attention, their fusion for
+cameras with state, and the action heads. A head turns encoder features into the parameters of a distribution
+over actions and knows how to score, draw and summarise actions of that distribution; ``CategoricalHead`` serves
+discrete action spaces, and a head for continuous actions is its sibling with the same methods."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
+from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.policy.algorithm import choose_actions
 
 
@@ -120,6 +121,50 @@ def make_image_encoder(backbone: str, in_channels: int, width: int, hidden: int,
     if backbone == "resnet18":
         return ResNet18Encoder(in_channels, hidden, attention)
     return ImageEncoder(in_channels, width, hidden, attention)
+
+
+class FusedEncoder(nn.Module):
+    """Cameras and vectors together: ``frames`` packed frames (B, frames · layout.size, ``ObservationLayout``) are
+    cut back into each camera, its frames stacked as channels (B, frames · C, H, W), and the vector keys (B, frames ·
+    D); one image encoder per camera (or one shared), one ``VectorEncoder`` for the vectors, their features
+    concatenated in key order and mixed by a linear layer."""
+
+    def __init__(self, layout: ObservationLayout, frames: int, config):
+        super().__init__()
+        hidden = config.hidden_dim
+        self.layout, self.frames = layout, frames
+        self.cameras = [i for i, visual in enumerate(layout.visual) if visual]
+        vector_columns = [
+            c for i, v in enumerate(layout.visual) if not v for c in range(layout.size)[layout.columns(i)]
+        ]
+        self.register_buffer("vector_columns", torch.as_tensor(vector_columns, dtype=torch.long), persistent=False)
+
+        def camera_encoder(i: int) -> nn.Module:
+            channels = frames * layout.shapes[i][0]
+            return make_image_encoder(config.image_backbone, channels, config.cnn_width, hidden, config.attention)
+
+        shared = config.shared_camera_encoder and len(self.cameras) > 1
+        self.camera_encoders = nn.ModuleList(
+            [camera_encoder(self.cameras[0])] if shared else [camera_encoder(i) for i in self.cameras]
+        )
+        self.vector_encoder = (
+            VectorEncoder(frames * len(vector_columns), config.token_dim, hidden, config.attention)
+            if vector_columns
+            else None
+        )
+        parts = len(self.cameras) + (self.vector_encoder is not None)
+        self.mix = nn.Sequential(nn.Linear(parts * hidden, hidden), nn.ReLU())
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = x.reshape(len(x), self.frames, self.layout.size)
+        features = []
+        for n, i in enumerate(self.cameras):
+            c, h, w = self.layout.shapes[i]
+            images = x[:, :, self.layout.columns(i)].reshape(len(x), self.frames * c, h, w)
+            features.append(self.camera_encoders[min(n, len(self.camera_encoders) - 1)](images))
+        if self.vector_encoder is not None:
+            features.append(self.vector_encoder(x[:, :, self.vector_columns].flatten(1)))
+        return self.mix(torch.cat(features, dim=1))
 
 
 class CategoricalHead(nn.Linear):

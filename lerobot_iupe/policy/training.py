@@ -324,11 +324,12 @@ class IUPETrainer:
         return transitions, successes, returns
 
     def observation(self, env_observation_dict: dict) -> np.ndarray:
-        """The policy's input from one env observation: its keys concatenated (images: (C, H, W), stacked)."""
+        """The policy's input from one env observation: its keys (cameras (H, W, C) → (C, H, W)) joined in
+        observation_keys order."""
+        layout = self.config.layout
         parts = [np.asarray(env_observation(env_observation_dict, k)) for k in self.env_keys]
-        if self.config.is_image:
-            parts = [p.transpose(2, 0, 1) for p in parts]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
+        parts = [p.transpose(2, 0, 1) if visual else p for p, visual in zip(parts, layout.visual, strict=True)]
+        return layout.join([p[None] for p in parts])[0]
 
     @property
     def idm_metric(self) -> str:

@@ -1,0 +1,63 @@
+"""One observation from several LeRobot features (cameras, ``observation.state``, ``observation.environment_state``)
+as one array per frame, in the order of the keys a checkpoint records.
+
+- Vector keys only: the vectors concatenated (N, D), as LeRobot's ACT concatenates state features.
+- One camera only: its frames (N, C, H, W), uint8 as stored.
+- A camera with any other key ("fused"): every key flattened per frame, cameras scaled to [0, 1] float32, and
+  concatenated (N, size). The networks cut it back into cameras and vectors by the same ``ObservationLayout``.
+
+Packing flat keeps one tensor per frame through every path that moves observations (the expert data in memory,
+pre-demonstrations, rollouts, relabelling windows, ``select_action``), so none of them needs to know the keys.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """Shapes of the keys of an observation, in order: cameras (C, H, W), vectors (D,)."""
+
+    shapes: tuple[tuple[int, ...], ...]
+
+    @property
+    def visual(self) -> tuple[bool, ...]:
+        return tuple(len(shape) == 3 for shape in self.shapes)
+
+    @property
+    def fused(self) -> bool:
+        return len(self.shapes) > 1 and any(self.visual)
+
+    @property
+    def sizes(self) -> list[int]:
+        return [int(np.prod(shape)) for shape in self.shapes]
+
+    @property
+    def size(self) -> int:
+        """Values of one packed frame."""
+        return sum(self.sizes)
+
+    def columns(self, part: int) -> slice:
+        """Where key ``part`` sits in a packed frame."""
+        start = sum(self.sizes[:part])
+        return slice(start, start + self.sizes[part])
+
+    def join(self, parts: list):
+        """One observation (numpy arrays or tensors with a leading N axis, one per key, in layout order): see the
+        module docstring. Cameras are uint8 0-255 (datasets, envs) or float 0-1 (LeRobot's preprocessed batches)."""
+        if len(parts) == 1:
+            return parts[0]
+        if not self.fused:
+            return torch.cat(parts, dim=1) if torch.is_tensor(parts[0]) else np.concatenate(parts, axis=1)
+        flat = [_as_float(part, visual).reshape(len(part), -1) for part, visual in zip(parts, self.visual, strict=True)]
+        return torch.cat(flat, dim=1) if torch.is_tensor(flat[0]) else np.concatenate(flat, axis=1)
+
+
+def _as_float(part, visual: bool):
+    if torch.is_tensor(part):
+        return part.float() / 255.0 if visual and part.dtype == torch.uint8 else part.float()
+    return part.astype(np.float32) / 255.0 if visual and part.dtype == np.uint8 else part.astype(np.float32)

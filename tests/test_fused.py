@@ -1,0 +1,164 @@
+"""Cameras and state together, on datasets written by LeRobot's own writer (no package metadata): each action
+dimension shows in one input only — the first in the top camera, the second in the side camera, the third in
+observation.state — so an IDM that drops any of them cannot label that dimension. (Cameras as PNG frames at
+16×16, which keeps training short; LeRobot's AV1 video encoder needs larger frames, and the video path is
+tested in test_relabel_any.)"""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from conftest import CHECKPOINT, once, run_cli, run_in_process
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.datasets import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+from lerobot_iupe.policy import IUPEConfig
+from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
+
+TOP, SIDE = "observation.images.top", "observation.images.side"
+SIZE = 16
+
+
+def write_three_views(root, episodes: int, seed: int, with_actions: bool, order=(TOP, SIDE, OBS_STATE)) -> np.ndarray:
+    """Three hidden levels p, each moved by one action dimension (p += 0.05 a); the top camera's grey level shows
+    p[0], the side camera's p[1], observation.state holds p[2] and a distractor. Features are declared in
+    ``order``. Returns every frame's true action (N, 3)."""
+    rng = np.random.default_rng(seed)
+    specs = {
+        TOP: {"dtype": "image", "shape": (SIZE, SIZE, 3), "names": ["height", "width", "channels"]},
+        SIDE: {"dtype": "image", "shape": (SIZE, SIZE, 3), "names": ["height", "width", "channels"]},
+        OBS_STATE: {"dtype": "float32", "shape": (2,), "names": ["level", "distractor"]},
+    }
+    features = {key: specs[key] for key in order}
+    if with_actions:
+        features[ACTION] = {"dtype": "float32", "shape": (3,), "names": ["top", "side", "state"]}
+    dataset = LeRobotDataset.create(f"local/{root.name}", 10, features, root=root, use_videos=False)
+    actions = []
+    for _ in range(episodes):
+        levels = rng.uniform(0.3, 0.7, 3)
+        for _ in range(int(rng.integers(20, 30))):
+            action = rng.uniform(-1, 1, 3).astype(np.float32)
+            grey = lambda level: np.full((SIZE, SIZE, 3), round(255 * (0.1 + 0.8 * level)), dtype=np.uint8)  # noqa: E731
+            frame = {
+                TOP: grey(levels[0]),
+                SIDE: grey(levels[1]),
+                OBS_STATE: np.array([levels[2], rng.normal()], dtype=np.float32),
+                "task": "move the levels",
+            }
+            if with_actions:
+                frame[ACTION] = action
+            dataset.add_frame(frame)
+            actions.append(action)
+            levels = np.clip(levels + 0.05 * action, 0.0, 1.0)
+        dataset.save_episode()
+    dataset.finalize()
+    return np.asarray(actions)
+
+
+def inner(actions: np.ndarray, dataset) -> np.ndarray:
+    episodes = np.asarray(dataset.hf_dataset.with_format("numpy")["episode_index"])
+    return actions[np.append(episodes[:-1] == episodes[1:], False)]
+
+
+def labels_of(root) -> tuple[np.ndarray, LeRobotDataset]:
+    dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
+    return np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]), dataset
+
+
+@pytest.fixture(scope="session")
+def fused_idm(shared_dir):
+    """A supervised IDM on every input of 16 labelled three-view episodes (built once for every worker)."""
+    work = shared_dir / "fused"
+    labelled = work / "labelled"
+
+    def make():
+        for leftover in (labelled, work / "idm"):
+            shutil.rmtree(leftover, ignore_errors=True)
+        write_three_views(labelled, episodes=16, seed=0, with_actions=True)
+        run_cli(
+            "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", "--policy.idm_context=0",
+            f"--dataset.repo_id=local/{labelled.name}", f"--dataset.root={labelled}", "--dataset.video_backend=pyav",
+            f"--output_dir={work / 'idm'}", "--num_workers=0", "--policy.device=cpu", "--wandb.enable=false",
+            "--steps=400", "--save_freq=400", "--batch_size=64", "--policy.optimizer_lr=3e-3",
+        )  # fmt: skip
+
+    return once(work / "idm", make, CHECKPOINT) / CHECKPOINT, work
+
+
+def relabel(checkpoint, root):
+    result = run_in_process(
+        "lerobot-iupe-relabel", f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}",
+        f"--dataset.root={root}", "--dataset.video_backend=pyav",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+
+
+def test_a_fused_idm_labels_what_only_one_camera_or_the_state_shows(fused_idm):
+    checkpoint, work = fused_idm
+    config = json.loads((checkpoint / "config.json").read_text())
+    assert config["observation_keys"] == [TOP, SIDE, OBS_STATE]
+    held_out, shuffled = work / "held-out", work / "held-out-shuffled"
+    for leftover in (held_out, shuffled):
+        shutil.rmtree(leftover, ignore_errors=True)
+    true = write_three_views(held_out, episodes=6, seed=1, with_actions=False)
+    relabel(checkpoint, held_out)
+    labels, dataset = labels_of(held_out)
+    per_dimension = [r_squared(inner(labels, dataset)[:, [d]], inner(true, dataset)[:, [d]]) for d in range(3)]
+    assert min(per_dimension) > 0.8, per_dimension  # top camera, side camera, state
+
+    # The same recording with its features declared in another order: the checkpoint's order decides.
+    write_three_views(shuffled, episodes=6, seed=1, with_actions=False, order=(OBS_STATE, SIDE, TOP))
+    relabel(checkpoint, shuffled)
+    np.testing.assert_array_equal(labels_of(shuffled)[0], labels)
+
+
+def fused_policy(**settings) -> IUPEPolicy:
+    camera = PolicyFeature(type=FeatureType.VISUAL, shape=(3, 8, 8))
+    state = PolicyFeature(type=FeatureType.STATE, shape=(2,))
+    config = IUPEConfig(
+        input_features={TOP: camera, SIDE: camera, OBS_STATE: state},
+        action_low=[-1.0] * 3, action_high=[1.0] * 3, action_names=["a", "b", "c"], device="cpu", **settings,
+    )  # fmt: skip
+    torch.manual_seed(0)
+    return IUPEPolicy(config)
+
+
+@pytest.mark.parametrize("shared", [False, True])
+def test_the_policy_reads_every_camera_and_the_state(shared):
+    policy = fused_policy(shared_camera_encoder=shared)
+    encoders = policy.pm_encoder.camera_encoders
+    assert len(encoders) == (1 if shared else 2)
+    for module in policy.modules():  # SAGAN's γ starts at 0; any value shows whether an input reaches the output
+        if hasattr(module, "gamma"):
+            module.gamma.data.fill_(0.5)
+    generator = torch.Generator().manual_seed(1)
+    batch = {
+        TOP: torch.rand(4, 3, 8, 8, generator=generator),
+        SIDE: torch.rand(4, 3, 8, 8, generator=generator),
+        OBS_STATE: torch.randn(4, 2, generator=generator),
+    }
+
+    def outputs(batch):
+        observation = policy.observation(batch)
+        return policy.pm_history_output(observation[:, None]), policy.idm_output(observation, observation.flip(0))
+
+    base = outputs(batch)
+    for key in batch:
+        changed = outputs({**batch, key: batch[key] + 0.5})
+        for before, after in zip(base, changed, strict=True):
+            assert not torch.allclose(before, after), f"{key} does not reach the output"
+
+
+def test_the_idm_reads_only_its_keys():
+    policy = fused_policy(idm_observation_keys=[OBS_STATE])
+    observation = policy.observation(
+        {TOP: torch.rand(2, 3, 8, 8), SIDE: torch.rand(2, 3, 8, 8), OBS_STATE: torch.ones(2, 2)}
+    )
+    blank = observation.clone()
+    blank[:, : 2 * 3 * 8 * 8] = 0.0  # both cameras
+    torch.testing.assert_close(policy.idm_output(observation, observation), policy.idm_output(blank, blank))
+    assert not torch.allclose(policy.pm_history_output(observation[:, None]), policy.pm_history_output(blank[:, None]))
