@@ -2,11 +2,13 @@
 true actions and (b) the same dataset stripped of its actions and relabelled by an IDM trained on 20% of its
 episodes (`--policy.supervised=true`), both evaluated by LeRobot's evaluation loop; 3 seeds per arm.
 
-    python scripts/measure_downstream.py [--envs lunarlander so101_pickplace] [--seeds 0 1 2]
+    python scripts/measure_downstream.py [--envs lunarlander so101_pickplace so101_camera] [--seeds 0 1 2]
+
+so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both.
 
 Writes the rows (env, policy, labels, seed, success_rate, …) into benchmarks/relabel.json under "downstream" and
 renders benchmarks/relabel.md. Evaluation is `eval_policy_all`, what `lerobot-eval` runs, without its video
-rendering (SO-101 cannot render without OpenGL on a CPU machine), on seeds 500000… never used by the data.
+rendering, on seeds 500000… never used by the data.
 """
 
 from __future__ import annotations
@@ -33,9 +35,16 @@ sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import render, run, update  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
-ENVS = {  # env type -> (expert episodes, IDM steps, ACT steps)
+ENVS = {  # name -> (expert episodes, IDM steps, ACT steps)
     "lunarlander": (50, 2000, 1500),
     "so101_pickplace": (50, 2000, 1500),
+    "so101_camera": (50, 2000, 1500),
+}
+# The env settings of each name: SO-101 with its front camera (64 px) and its state, no block or goal positions.
+ENV_SETTINGS = {
+    "lunarlander": {"type": "lunarlander"},
+    "so101_pickplace": {"type": "so101_pickplace"},
+    "so101_camera": {"type": "so101_pickplace", "image_obs": True, "image_size": 64},
 }
 # A CPU-sized ACT (LeRobot's defaults are for 480-px cameras): 10-step chunks, 128-wide transformer.
 ACT_FLAGS = [
@@ -99,9 +108,10 @@ def measure(
     episodes, idm_steps, act_steps = ENVS[env]
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
     stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-k{k}"
+    env_flags = [f"--env.{name}={str(value).lower()}" for name, value in ENV_SETTINGS[env].items()]
     if not truth.exists():
         run(
-            "lerobot-iupe-collect", f"--env.type={env}", "--agent=expert", f"--episodes={episodes}", "--seed=0",
+            "lerobot-iupe-collect", *env_flags, "--agent=expert", f"--episodes={episodes}", "--seed=0",
             "--keep_actions=true", f"--dataset.repo_id=local/{truth.name}", f"--dataset.root={truth}",
         )  # fmt: skip
     source = LeRobotDataset(f"local/{truth.name}", root=truth, video_backend="pyav")
@@ -124,7 +134,7 @@ def measure(
     print(json.dumps(quality), flush=True)
     if not arms:
         return [], quality
-    env_cfg = env_config_from_settings({"type": env})
+    env_cfg = env_config_from_settings(ENV_SETTINGS[env])
     datasets = {"true": truth, "idm": relabelled}
     runs = [(labels, datasets[labels], seed) for labels in arms for seed in seeds]
 
