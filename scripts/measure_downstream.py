@@ -103,11 +103,12 @@ def label_quality(env: str, truth: Path, relabelled: Path, held_out_from: int) -
 
 
 def measure(
-    env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: int, k: int, arms: list[str]
+    env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: int, k: int, arms: list[str], keys: list[str]
 ) -> tuple[list[dict], dict]:
     episodes, idm_steps, act_steps = ENVS[env]
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
-    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-k{k}"
+    variant = f"k{k}" + "".join(f"-{key.split('.')[-1]}" for key in keys)  # e.g. k1-front: the camera alone
+    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-{variant}"
     env_flags = [f"--env.{name}={str(value).lower()}" for name, value in ENV_SETTINGS[env].items()]
     if not truth.exists():
         run(
@@ -120,7 +121,9 @@ def measure(
         delete_episodes(source, list(range(n_labelled, episodes)), labelled, f"local/{labelled.name}")
         (labelled / "meta" / "iupe.json").unlink(missing_ok=True)  # LeRobot's own files only
     idm_flags = ["--policy.type=iupe", "--policy.supervised=true", f"--policy.idm_context={k}"]
-    idm = train(labelled, work / f"{env}-idm-k{k}-train", idm_steps, 0, idm_flags)
+    idm_flags += [f"--policy.observation_keys=[{','.join(keys)}]"] if keys else []
+    idm = train(labelled, work / f"{env}-idm-{variant}-train", idm_steps, 0, idm_flags)
+    read = ", ".join(json.loads((idm / "config.json").read_text())["observation_keys"])
     shutil.rmtree(stripped, ignore_errors=True)
     shutil.rmtree(relabelled, ignore_errors=True)
     remove_feature(source, "action", output_dir=stripped, repo_id=f"local/{stripped.name}")
@@ -128,7 +131,7 @@ def measure(
     start = time.perf_counter()
     run("lerobot-iupe-relabel", f"--policy.path={idm}", f"--dataset.repo_id=local/{relabelled.name}",
         f"--dataset.root={relabelled}")  # fmt: skip
-    quality = {"env": env, "idm_context": k, "labelled_episodes": n_labelled, "episodes": episodes,
+    quality = {"env": env, "idm_context": k, "idm_reads": read, "labelled_episodes": n_labelled, "episodes": episodes,
                "idm_steps": idm_steps, "relabel_s": time.perf_counter() - start,
                **label_quality(env, truth, relabelled, held_out_from=n_labelled)}  # fmt: skip
     print(json.dumps(quality), flush=True)
@@ -174,6 +177,9 @@ def main() -> None:
         "--arms", nargs="*", default=["true", "idm"], choices=["true", "idm"],
         help="ACT arms to train (none: measure the labels only)",
     )  # fmt: skip
+    parser.add_argument(
+        "--idm_keys", nargs="*", default=[], help="the observation keys the IDM reads (default: all of them)"
+    )
     parser.add_argument("--work", default="outputs/measure-downstream")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -181,10 +187,12 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
     for env in args.envs:
-        rows, quality = measure(env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms)
+        rows, quality = measure(
+            env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms, args.idm_keys
+        )
         if rows:
             update(Path(args.out), "downstream", rows, command, key=("env", "labels", "idm_context", "seed"))
-        update(Path(args.out), "downstream_labels", [quality], command, key=("env", "idm_context"))
+        update(Path(args.out), "downstream_labels", [quality], command, key=("env", "idm_context", "idm_reads"))
     print(render(Path(args.out)))
 
 

@@ -51,8 +51,8 @@ def update(out: Path, section: str, rows: list[dict], command: str, key: tuple[s
     if key is None:
         data[section] = rows
     else:
-        new = {tuple(r[k] for k in key) for r in rows}
-        data[section] = [r for r in data.get(section, []) if tuple(r[k] for k in key) not in new] + rows
+        new = {tuple(r.get(k) for k in key) for r in rows}
+        data[section] = [r for r in data.get(section, []) if tuple(r.get(k) for k in key) not in new] + rows
     commands = data["commands"].get(section, [])
     commands = [commands] if isinstance(commands, str) else commands
     data["commands"][section] = commands + [command] if command not in commands else commands
@@ -124,14 +124,14 @@ def render(out: Path) -> str:
             "### The labels of (b), against the stripped true actions (frames with a successor, on the episodes "
             "the IDM did not train on)",
             "",
-            "| env | k | IDM trained on (episodes) | scored frames | R² | R² per dimension | R² of the effect "
-            "| engines on/off agree |",
-            "|---|---|---|---|---|---|---|---|",
+            "| env | k | IDM reads | IDM trained on (episodes) | scored frames | R² | R² per dimension "
+            "| R² of the effect | engines on/off agree |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for q in data["downstream_labels"]:
             per_dim = ", ".join(_f(x) for x in q["r2_per_dim"])
             lines.append(
-                f"| {q['env']} | {q.get('idm_context', 0)} "
+                f"| {q['env']} | {q.get('idm_context', 0)} | {q.get('idm_reads') or '–'} "
                 f"| {q['labelled_episodes']} of {q['episodes']} | {q['frames']}"
                 f"{'' if q.get('scored_episodes') else ' (all episodes: before held-out scoring)'} | {_f(q['r2'])} | "
                 f"{per_dim} | {_f(q.get('effect_r2'))} | "
