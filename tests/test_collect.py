@@ -162,7 +162,7 @@ def test_iupe_trains_and_lerobot_eval_runs_on_the_arms_camera_and_state(data_dir
     play = collect_fixture(data_dir, "so101-camera-play", *camera, "--agent=play", "--episodes=2", "--seed=100")
     run_cli(
         "lerobot-train", *train_args(expert, play, tmp_path / "run"), "--steps=4", "--save_freq=4", "--batch_size=8",
-        "--policy.cycle_steps=2", "--policy.rollout_episodes=2", "--policy.idm_epochs=1",
+        "--policy.cycle_steps=2", "--policy.rollout_episodes=2", "--policy.idm_epochs=1", "--policy.torch_threads=1",
     )  # fmt: skip
     checkpoint = tmp_path / "run" / CHECKPOINT
     config = json.loads((checkpoint / "config.json").read_text())
