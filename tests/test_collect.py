@@ -84,6 +84,8 @@ def test_keep_actions_stores_expert_actions(data_dir):
         (["--env.type=maze", "--env.size=1"], "--env.size must be at least 2"),
         (["--env.type=cartpole", "--random_start=true"], "--random_start"),
         (["--env.type=cartpole", "--video=false"], "--video=false only applies"),
+        (["--env.type=so101_pickplace", "--video=false"], "--env.image_obs=true"),
+        (["--env.type=so101_pickplace", "--env.image_obs=true", "--env.image_size=8"], "--env.image_size must be"),
         (["--env.type=cartpole", "--push_to_hub=true"], "--push_to_hub is now --dataset.push_to_hub"),
     ],
 )

@@ -46,6 +46,10 @@ class ObservationLayout:
         start = sum(self.sizes[:part])
         return slice(start, start + self.sizes[part])
 
+    def indices(self, parts) -> list[int]:
+        """The packed columns of these keys (by position), in layout order."""
+        return [c for i in sorted(parts) for c in range(self.columns(i).start, self.columns(i).stop)]
+
     def join(self, parts: list):
         """One observation (numpy arrays or tensors with a leading N axis, one per key, in layout order): see the
         module docstring. Cameras are uint8 0-255 (datasets, envs) or float 0-1 (LeRobot's preprocessed batches)."""

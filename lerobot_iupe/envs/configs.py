@@ -272,24 +272,17 @@ class SO101PickPlaceEnvConfig(ClassicEnvConfig):
         if self.image_size < 16:
             raise ValueError(f"--env.image_size must be at least 16 pixels, got {self.image_size}")
 
+    def _task_settings(self) -> dict:
+        """The plugin env's settings beyond the time limit: ``gym_kwargs`` and ``settings`` both carry them."""
+        camera = {"image_obs": True, "image_size": self.image_size} if self.image_obs else {}
+        return {"action_scale": self.action_scale, "random_block_position": self.random_block_position, **camera}
+
     @property
     def gym_kwargs(self) -> dict:
-        camera = {"image_obs": True, "image_size": self.image_size} if self.image_obs else {}
-        return {
-            **super().gym_kwargs,
-            "action_scale": self.action_scale,
-            "random_block_position": self.random_block_position,
-            **camera,
-        }
+        return {**super().gym_kwargs, **self._task_settings()}
 
     def settings(self) -> dict:
-        camera = {"image_obs": True, "image_size": self.image_size} if self.image_obs else {}
-        return {
-            **super().settings(),
-            "action_scale": self.action_scale,
-            "random_block_position": self.random_block_position,
-            **camera,
-        }
+        return {**super().settings(), **self._task_settings()}
 
 
 def register_gym_envs() -> None:

@@ -61,8 +61,8 @@ class SO101PickPlaceEnv(gym.Wrapper):
         )
         if image_obs:
             use_offscreen_gl()
-            # Without multisampling and shadows MuJoCo renders ~9x faster on a CPU (30 against 3.5 steps/s with
-            # the model's 8x multisampling and 4096-px shadow maps); the scene stays legible at 64 px.
+            # Without multisampling and shadows MuJoCo renders 8x faster on a CPU (scripts/measure_render.py); the
+            # scene stays legible at 64 px.
             model = self.env.unwrapped._model
             model.vis.quality.offsamples = 0
             model.vis.quality.shadowsize = 0

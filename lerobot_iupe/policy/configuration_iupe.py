@@ -170,23 +170,23 @@ class IUPEConfig(PreTrainedConfig):
         """The first observation key (single-key tools: relabelling, hub cards)."""
         return self.observation_keys[0]
 
+    def layout_of(self, keys: list[str]) -> ObservationLayout:
+        """How these observation keys are joined into one array per frame (``data.observation``)."""
+        return ObservationLayout(tuple(tuple(self.input_features[k].shape) for k in keys))
+
     @property
     def layout(self) -> ObservationLayout:
-        """How the observation keys are joined into one array per frame (``data.observation``)."""
-        return ObservationLayout(tuple(tuple(self.input_features[k].shape) for k in self.observation_keys))
+        return self.layout_of(self.observation_keys)
 
-    def idm_layout(self) -> ObservationLayout:
-        keys = self.idm_observation_keys or self.observation_keys
-        return ObservationLayout(tuple(tuple(self.input_features[k].shape) for k in keys))
+    @property
+    def idm_keys(self) -> list[str]:
+        """The observation keys the IDM reads."""
+        return self.idm_observation_keys or self.observation_keys
 
     @property
     def is_image(self) -> bool:
         """The policy reads a camera (alone or fused with other keys)."""
         return any(self.input_features[k].type is FeatureType.VISUAL for k in self.observation_keys)
-
-    @property
-    def is_fused(self) -> bool:
-        return self.layout.fused
 
     @property
     def is_continuous(self) -> bool:

@@ -35,11 +35,10 @@ class IUPEPolicy(PreTrainedPolicy):
         # concatenated, a single camera as it is, a camera with other keys packed flat and fused by FusedEncoder.
         layout, hidden = config.layout, config.hidden_dim
         frames, history = len(config.idm_window), config.n_obs_steps
-        columns = [c for i, k in enumerate(config.observation_keys) for c in range(layout.size)[layout.columns(i)]
-                   if k in (config.idm_observation_keys or config.observation_keys)]  # fmt: skip
+        columns = layout.indices(i for i, key in enumerate(config.observation_keys) if key in config.idm_keys)
         self.idm_columns = None if len(columns) == layout.size else torch.as_tensor(columns)
         if layout.fused:
-            self.idm_encoder = FusedEncoder(config.idm_layout(), frames, config)
+            self.idm_encoder = FusedEncoder(config.layout_of(config.idm_keys), frames, config)
             self.pm_encoder = FusedEncoder(layout, history, config)
         elif config.is_image:
             channels = layout.shapes[0][0]
@@ -64,6 +63,7 @@ class IUPEPolicy(PreTrainedPolicy):
                 mean, std = (np.asarray(dataset_stats[key][n], dtype=np.float32).reshape(-1) for n in ("mean", "std"))
                 self.state_mean[layout.columns(i)] = torch.as_tensor(mean)
                 self.state_std[layout.columns(i)] = torch.as_tensor(std).clamp_min(1e-3)
+        self.layout = layout  # read on every select_action and rollout step
         self.dataset_meta = dataset_meta
         self._history: Tensor | None = None  # select_action's last n_obs_steps observations (B, n, …)
         # lerobot-train seeds torch with its --seed just before building the policy: that seed drives IUPE's own
@@ -75,7 +75,7 @@ class IUPEPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------ the two models
 
     def _prepare(self, obs: Tensor) -> Tensor:
-        if self.config.is_image and not self.config.is_fused:
+        if self.config.is_image and not self.layout.fused:
             return obs.float() / 255.0 if obs.dtype == torch.uint8 else obs.float()
         return (obs.float() - self.state_mean) / self.state_std
 
@@ -122,7 +122,7 @@ class IUPEPolicy(PreTrainedPolicy):
 
     def observation(self, batch: dict[str, Tensor]) -> Tensor:
         """The policy's input from a LeRobot batch: its observation keys joined in the recorded order."""
-        return self.config.layout.join([batch[k] for k in self.config.observation_keys])
+        return self.layout.join([batch[k] for k in self.config.observation_keys])
 
     def idm_parameters(self) -> list[nn.Parameter]:
         return list(self.idm_encoder.parameters()) + list(self.idm_head.parameters())

@@ -134,9 +134,7 @@ class FusedEncoder(nn.Module):
         hidden = config.hidden_dim
         self.layout, self.frames = layout, frames
         self.cameras = [i for i, visual in enumerate(layout.visual) if visual]
-        vector_columns = [
-            c for i, v in enumerate(layout.visual) if not v for c in range(layout.size)[layout.columns(i)]
-        ]
+        vector_columns = layout.indices(i for i, visual in enumerate(layout.visual) if not visual)
         self.register_buffer("vector_columns", torch.as_tensor(vector_columns, dtype=torch.long), persistent=False)
 
         def camera_encoder(i: int) -> nn.Module:

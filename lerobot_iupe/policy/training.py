@@ -326,7 +326,7 @@ class IUPETrainer:
     def observation(self, env_observation_dict: dict) -> np.ndarray:
         """The policy's input from one env observation: its keys (cameras (H, W, C) → (C, H, W)) joined in
         observation_keys order."""
-        layout = self.config.layout
+        layout = self.policy.layout
         parts = [np.asarray(env_observation(env_observation_dict, k)) for k in self.env_keys]
         parts = [p.transpose(2, 0, 1) if visual else p for p, visual in zip(parts, layout.visual, strict=True)]
         return layout.join([p[None] for p in parts])[0]
