@@ -98,6 +98,9 @@ def test_method_flags_name_the_mechanisms():
 def test_records_are_keyed_by_everything_that_determines_them():
     preset = PRESETS["cartpole"]
     assert preset.data_key(quick=True) != preset.data_key(quick=False)  # --quick never reuses full datasets
+    play = dataclasses.replace(preset, data=dataclasses.replace(preset.data, pre_demos_agent="play"))
+    assert play.data_key(quick=False) != preset.data_key(quick=False)  # play pre-demonstrations are other data
+    assert preset.data_key(quick=False) == "2b950ece34"  # the committed rows' key: unchanged by the field
     run = Run("table1", "cartpole", preset, "iupe", 0, {}, {})
     changed = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"idm_lr": "1e-2"}))
     assert run.config_key(100) != dataclasses.replace(run, preset=changed).config_key(100)

@@ -88,7 +88,7 @@ def collect_datasets(
     for kind, agent, episodes, extra in [
         ("expert", "expert", n_expert, ["--seed=0"]),
         ("expert-actions", "expert", n_expert, ["--seed=0", "--keep_actions=true"]),
-        ("random", "random", n_random, ["--seed=1000", *preset.data.random_flags()]),
+        ("random", preset.data.pre_demos_agent, n_random, ["--seed=1000", *preset.data.random_flags()]),
     ]:
         if kind == "expert-actions" and not with_actions:
             continue
