@@ -48,11 +48,19 @@ ENV_SETTINGS = {
 }
 # A CPU-sized ACT (LeRobot's defaults are for 480-px cameras): 10-step chunks, 128-wide transformer.
 ACT_FLAGS = [
-    "--policy.type=act", "--policy.chunk_size=10", "--policy.n_action_steps=10", "--policy.dim_model=128",
+    "--policy.type=act", "--policy.chunk_size=10", "--policy.dim_model=128",
     "--policy.n_heads=4", "--policy.dim_feedforward=512", "--policy.n_encoder_layers=2",
     "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=2", "--policy.optimizer_lr=5e-4",
     "--policy.push_to_hub=false", "--batch_size=64",
 ]  # fmt: skip
+# How ACT plays its chunks (LeRobot's own options): all 10 actions open loop; a new chunk every step, its first
+# action; a new chunk every step, the chunks' predictions for this step averaged (ACT's temporal ensembling).
+ACT_SETTINGS = {
+    "chunk10": ["--policy.n_action_steps=10"],
+    "replan": ["--policy.n_action_steps=1"],
+    "ensemble": ["--policy.n_action_steps=1", "--policy.temporal_ensemble_coeff=0.01"],
+}
+DEFAULT_ACT = "chunk10"
 COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]
 
 
@@ -103,9 +111,19 @@ def label_quality(env: str, truth: Path, relabelled: Path, held_out_from: int) -
 
 
 def measure(
-    env: str, work: Path, seeds: list[int], episodes_eval: int, jobs: int, k: int, arms: list[str], keys: list[str]
+    env: str,
+    work: Path,
+    seeds: list[int],
+    episodes_eval: int,
+    jobs: int,
+    k: int,
+    arms: list[str],
+    keys: list[str],
+    act: str = DEFAULT_ACT,
+    act_steps: int | None = None,
 ) -> tuple[list[dict], dict]:
-    episodes, idm_steps, act_steps = ENVS[env]
+    episodes, idm_steps, default_act_steps = ENVS[env]
+    act_steps = act_steps or default_act_steps
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
     variant = f"k{k}" + "".join(f"-{key.split('.')[-1]}" for key in keys)  # e.g. k1-front: the camera alone
     stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-{variant}"
@@ -145,7 +163,9 @@ def measure(
         labels, dataset, seed = run
         start = time.perf_counter()
         name = f"{env}-act-true-s{seed}" if labels == "true" else f"{env}-act-idm-k{k}-s{seed}"
-        checkpoint = train(dataset, work / name, act_steps, seed, ACT_FLAGS)
+        if (act, act_steps) != (DEFAULT_ACT, default_act_steps):
+            name += f"-{act}-{act_steps}"
+        checkpoint = train(dataset, work / name, act_steps, seed, ACT_FLAGS + ACT_SETTINGS[act])
         return checkpoint, time.perf_counter() - start
 
     with ThreadPoolExecutor(jobs) as pool:
@@ -159,7 +179,7 @@ def measure(
                 "env": env, "policy": "act", "labels": labels, "idm_context": k if labels == "idm" else None,
                 "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
-                "episodes": episodes_eval, "act_steps": act_steps, "train_s": train_s,
+                "episodes": episodes_eval, "act": act, "act_steps": act_steps, "train_s": train_s,
             }
         )  # fmt: skip
         print(json.dumps(rows[-1]), flush=True)
@@ -180,6 +200,10 @@ def main() -> None:
     parser.add_argument(
         "--idm_keys", nargs="*", default=[], help="the observation keys the IDM reads (default: all of them)"
     )
+    parser.add_argument(
+        "--act", default=DEFAULT_ACT, choices=list(ACT_SETTINGS), help="how ACT plays its chunks (see ACT_SETTINGS)"
+    )
+    parser.add_argument("--act_steps", type=int, default=None, help="ACT's training steps (default: per env)")
     parser.add_argument("--work", default="outputs/measure-downstream")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -188,10 +212,12 @@ def main() -> None:
     command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
     for env in args.envs:
         rows, quality = measure(
-            env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms, args.idm_keys
-        )
+            env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms, args.idm_keys,
+            args.act, args.act_steps,
+        )  # fmt: skip
         if rows:
-            update(Path(args.out), "downstream", rows, command, key=("env", "labels", "idm_context", "seed"))
+            key = ("env", "labels", "idm_context", "seed", "act", "act_steps")
+            update(Path(args.out), "downstream", rows, command, key=key)
         update(Path(args.out), "downstream_labels", [quality], command, key=("env", "idm_context", "idm_reads"))
     print(render(Path(args.out)))
 
