@@ -71,6 +71,15 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     )
     assert "lerobot-train" not in rescored.stdout
     assert json.loads((stale / "results.json").read_text()) == published
+    # a report that still holds a row of an older configuration of a recorded run: the run's own row stays alone
+    older = tmp_path / "older"
+    older.mkdir()
+    (row,) = [r for r in published if (r["env"], r["method"], r["eval_mode"]) == ("cartpole", "iupe", "argmax")]
+    (older / "results.json").write_text(json.dumps([*published, dict(row, config="0ld0ld0ld0", P=-9.0)]))
+    work = f"--work={tmp_path / 'work'}"
+    merged = run_cli("lerobot-iupe-benchmark", *args, work, f"--out={older}", f"--from={older}")
+    assert "lerobot-train" not in merged.stdout and "1 records added" in merged.stdout
+    assert json.loads((older / "results.json").read_text()) == published
 
 
 def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):

@@ -186,12 +186,14 @@ class Benchmark:
             self.calls_file.write_text("".join(json.dumps(c) + "\n" for c in json.loads(calls.read_text())))
         return len(new)
 
-    def forget(self, runs: list[tuple[str, str, str, int | None]]) -> int:
-        """Drop the records of ``runs`` (table, env, method, seed) from ``runs.jsonl``; returns how many rows went.
-        The file is replaced whole (written beside it, then renamed), so an interruption loses nothing."""
-        keep, dropped, runs = [], 0, set(runs)
+    def forget(self, runs: list[tuple[str, str, str, int | None]], unless_config: dict | None = None) -> int:
+        """Drop the records of ``runs`` (table, env, method, seed) from ``runs.jsonl``, except those whose
+        configuration key is ``unless_config[run]``; returns how many rows went. The file is replaced whole
+        (written beside it, then renamed), so an interruption loses nothing."""
+        keep, dropped, runs, unless_config = [], 0, set(runs), unless_config or {}
         for record in self.records():
-            if (record["table"], record["env"], record["method"], record["seed"]) in runs:
+            run = (record["table"], record["env"], record["method"], record["seed"])
+            if run in runs and record.get("config") != unless_config.get(run):
                 dropped += 1
             else:
                 keep.append(record)
@@ -282,8 +284,11 @@ class Benchmark:
             for seed in ([None] if method in ("expert", "random") else seeds)
         ]
         pending = [run for run in runs if not self._done(run)]
-        with self._lock:  # rows of an older configuration of a pending run are replaced, not kept beside it
-            self.forget([(run.table, run.name, run.method, run.seed) for run in pending])
+        # Rows of another configuration of a planned run (an older one, or one --from added back beside a newer
+        # run) are replaced by the run's own, never kept beside them.
+        current = {(run.table, run.name, run.method, run.seed): run.config_key(self.eval_episodes) for run in runs}
+        with self._lock:
+            self.forget(list(current), unless_config=current)
         if any(run.method not in ("expert", "random") for run in pending):  # the built-in agents need no data
             data = collect_datasets(name, preset, self.work / "data", self.quick, threads, self.quiet, "bc" in methods)
             for run in pending:
