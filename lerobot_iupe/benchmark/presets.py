@@ -120,6 +120,7 @@ class EnvPreset:
         """Short hash of everything that determines the datasets: a changed preset collects new ones."""
         data = self.data
         key = [self.env, data.expert_episodes, data.random_episodes, data.random_flags(), data.data_flags(), quick]
+        # the default agent stays out of the hash, so the committed rows of random pre-demonstrations keep their keys
         return digest(key if data.pre_demos_agent == "random" else [*key, data.pre_demos_agent])
 
 
