@@ -1,9 +1,11 @@
 """How right the labels were that each benchmark run's policy learned from: the selected checkpoint's IDM relabels
 the run's own expert dataset (by `lerobot-iupe-relabel`, argmax) and is compared with the true actions the
-benchmark kept beside it (`<data>-actions`), on every frame with a successor. Discrete actions only.
+benchmark kept beside it (`<data>-actions`), on every frame with a successor: accuracy for discrete actions, R²
+per dimension (and their mean) for continuous ones.
 
     python scripts/measure_run_labels.py --work outputs/bench-r3 --runs table1/maze10 ablation/maze10
-Writes <out>/run_labels.json and prints a table per method (mean ± std over seeds, ddof = 1).
+Adds its rows to <out>/run_labels.json (replacing those of the same runs) and prints a table per method (mean ±
+std over seeds, ddof = 1). BC runs (trained on the true actions, no IDM) are skipped.
 """
 
 import argparse
@@ -19,6 +21,7 @@ import numpy as np
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.benchmark import CHECKPOINT
+from lerobot_iupe.policy.algorithm import r_squared
 
 BIN = Path(sys.executable).parent
 
@@ -26,7 +29,20 @@ BIN = Path(sys.executable).parent
 def actions_with_successor(repo_id: str, root: Path) -> np.ndarray:
     table = LeRobotDataset(repo_id, root=root, video_backend="pyav").hf_dataset.with_format("numpy")
     episodes = np.asarray(table["episode_index"])
-    return np.asarray(table["action"]).reshape(-1)[np.append(episodes[:-1] == episodes[1:], False)]
+    actions = np.asarray(table["action"]).reshape(len(episodes), -1)
+    return actions[np.append(episodes[:-1] == episodes[1:], False)]
+
+
+def trained_on_true_actions(run: Path) -> bool:
+    """BC runs: their IDM was never trained, so there is nothing to measure."""
+    return json.loads((run / CHECKPOINT / "config.json").read_text()).get("supervised", False)
+
+
+def label_score(labels: np.ndarray, truth: np.ndarray) -> dict:
+    if np.issubdtype(truth.dtype, np.integer):
+        return {"label_accuracy": float((labels == truth).all(axis=1).mean())}
+    per_dimension = [r_squared(labels[:, d], truth[:, d]) for d in range(truth.shape[1])]
+    return {"label_r2": float(np.mean(per_dimension)), "label_r2_per_dimension": per_dimension}
 
 
 def label_accuracy(run: Path) -> dict:
@@ -46,35 +62,46 @@ def label_accuracy(run: Path) -> dict:
     selected = max((c["cycle"] for c in cycles if c["selected"]), default=None)
     return {
         "run": f"{run.parent.parent.name}/{run.parent.name}/{run.name}",
-        "label_accuracy": float((labels == truth).mean()),
+        **label_score(labels, truth),
         "frames": int(len(truth)),
         "selected_cycle": selected,
         "rollout_success_at_selection": next((c["success_rate"] for c in cycles if c["cycle"] == selected), None),
     }
 
 
+def save(path: Path, command: str, rows: list[dict]) -> None:
+    """Add ``rows`` to the file's, replacing rows of the same runs, and ``command`` to its commands."""
+    saved = json.loads(path.read_text()) if path.exists() else {"commands": [], "rows": []}
+    runs = {row["run"] for row in rows}
+    saved["rows"] = [row for row in saved["rows"] if row["run"] not in runs] + rows
+    saved["commands"] = [c for c in saved["commands"] if c != command] + [command]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(saved, indent=1) + "\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", default="outputs/bench-r3", help="a benchmark's --work folder")
     parser.add_argument("--runs", nargs="+", default=["table1/maze10", "ablation/maze10"], help="<table>/<env>")
-    parser.add_argument("--out", default="benchmarks")
+    parser.add_argument("--out", default="benchmarks", help="where run_labels.json goes")
     args = parser.parse_args()
     runs = sorted(
         run
         for folder in args.runs
         for run in (Path(args.work) / "runs" / folder).iterdir()
-        if (run / CHECKPOINT / "model.safetensors").exists()
+        if (run / CHECKPOINT / "model.safetensors").exists() and not trained_on_true_actions(run)
     )
     rows = []
     for run in runs:
         rows.append(label_accuracy(run))
         print(json.dumps(rows[-1]), flush=True)
     command = " ".join(["python", "scripts/measure_run_labels.py", *sys.argv[1:]])
-    Path(args.out, "run_labels.json").write_text(json.dumps({"commands": [command], "rows": rows}, indent=1) + "\n")
+    save(Path(args.out) / "run_labels.json", command, rows)
     by_method: dict[str, list[float]] = {}
     for row in rows:
-        by_method.setdefault(re.sub(r"-s\d+$", "", row["run"]), []).append(row["label_accuracy"])
-    print("| runs | label accuracy per seed | mean ± std |\n|---|---|---|")
+        score = row.get("label_accuracy", row.get("label_r2"))
+        by_method.setdefault(re.sub(r"-s\d+$", "", row["run"]), []).append(score)
+    print("| runs | label accuracy (discrete) or mean R² (continuous) per seed | mean ± std |\n|---|---|---|")
     for method, values in by_method.items():
         spread = np.std(values, ddof=1) if len(values) > 1 else 0.0
         print(f"| {method} | {', '.join(f'{v:.3f}' for v in values)} | {np.mean(values):.3f} ± {spread:.3f} |")
