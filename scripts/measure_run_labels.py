@@ -45,7 +45,7 @@ def label_score(labels: np.ndarray, truth: np.ndarray) -> dict:
     return {"label_r2": float(np.mean(per_dimension)), "label_r2_per_dimension": per_dimension}
 
 
-def label_accuracy(run: Path) -> dict:
+def score_run(run: Path) -> dict:
     checkpoint = run / CHECKPOINT
     dataset = json.loads((checkpoint / "train_config.json").read_text())["dataset"]
     root = Path(dataset["root"])
@@ -85,6 +85,9 @@ def main() -> None:
     parser.add_argument("--runs", nargs="+", default=["table1/maze10", "ablation/maze10"], help="<table>/<env>")
     parser.add_argument("--out", default="benchmarks", help="where run_labels.json goes")
     args = parser.parse_args()
+    for folder in args.runs:
+        if not (Path(args.work) / "runs" / folder).is_dir():
+            parser.error(f"--runs {folder}: no folder {Path(args.work) / 'runs' / folder} (give <table>/<env> of --work)")
     runs = sorted(
         run
         for folder in args.runs
@@ -93,7 +96,7 @@ def main() -> None:
     )
     rows = []
     for run in runs:
-        rows.append(label_accuracy(run))
+        rows.append(score_run(run))
         print(json.dumps(rows[-1]), flush=True)
     command = " ".join(["python", "scripts/measure_run_labels.py", *sys.argv[1:]])
     save(Path(args.out) / "run_labels.json", command, rows)
