@@ -87,7 +87,7 @@ def main() -> None:
     args = parser.parse_args()
     for folder in args.runs:
         if not (Path(args.work) / "runs" / folder).is_dir():
-            parser.error(f"--runs {folder}: no folder {Path(args.work) / 'runs' / folder} (give <table>/<env> of --work)")
+            parser.error(f"--runs {folder}: no folder {Path(args.work) / 'runs' / folder} (<table>/<env> of --work)")
     runs = sorted(
         run
         for folder in args.runs
