@@ -15,7 +15,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
 
@@ -24,6 +23,7 @@ from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
 
 BIN = Path(sys.executable).parent
 sys.path.insert(0, str(Path(__file__).parent))
+from measure_run_labels import actions_with_successor  # noqa: E402
 from relabel_report import render, update  # noqa: E402
 
 ENVS = ["cartpole", "mountaincar", "acrobot", "maze5"]
@@ -41,12 +41,6 @@ def checkpoint_of(env: str, work: Path) -> Path:
     bench = Benchmark(work, eval_episodes=10, quiet=True)
     bench.execute(bench.plan("table1", env, PRESETS[env], ["iupe"], [0]))
     return work / "runs" / "table1" / env / "iupe-s0" / CHECKPOINT
-
-
-def actions_with_successor(root: Path) -> np.ndarray:
-    table = LeRobotDataset("local/m", root=root, video_backend="pyav").hf_dataset.with_format("numpy")
-    episodes = np.asarray(table["episode_index"])
-    return np.asarray(table["action"]).reshape(-1)[np.append(episodes[:-1] == episodes[1:], False)]
 
 
 def accuracy(env: str, work: Path, episodes: int) -> dict:
@@ -68,7 +62,7 @@ def accuracy(env: str, work: Path, episodes: int) -> dict:
         f"--dataset.root={stripped}", "--dataset.video_backend=pyav",
     )  # fmt: skip
     seconds = time.perf_counter() - start
-    true, labelled = actions_with_successor(truth), actions_with_successor(stripped)
+    true, labelled = (actions_with_successor(f"local/{root.name}", root) for root in (truth, stripped))
     return {
         "env": env,
         "checkpoint": str(checkpoint),

@@ -21,15 +21,17 @@ import numpy as np
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.benchmark import CHECKPOINT
+from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.policy.algorithm import r_squared
 
 BIN = Path(sys.executable).parent
 
 
 def actions_with_successor(repo_id: str, root: Path) -> np.ndarray:
-    table = LeRobotDataset(repo_id, root=root, video_backend="pyav").hf_dataset.with_format("numpy")
-    episodes = np.asarray(table["episode_index"])
-    actions = np.asarray(table["action"]).reshape(len(episodes), -1)
+    """The ``action`` column (N', D) on the frames that have a successor in their episode."""
+    dataset = LeRobotDataset(repo_id, root=root, video_backend="pyav")
+    episodes = column_array(dataset.hf_dataset, "episode_index")
+    actions = action_array(dataset).reshape(len(episodes), -1)
     return actions[np.append(episodes[:-1] == episodes[1:], False)]
 
 
