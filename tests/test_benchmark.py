@@ -2,6 +2,9 @@
 
 import dataclasses
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
@@ -128,3 +131,14 @@ def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):
 def test_cells_give_the_sample_standard_deviation_over_seeds():
     rows = [{"P": p, "AER": 10 * p} for p in (0.0, 1.0, 2.0)]
     assert _cell(rows) == "1.000 ± 1.000 / 10.000 ± 10.000 (n=3)"  # ddof = 1 (ddof = 0 would give 0.816)
+
+
+def test_run_labels_script_names_a_missing_runs_folder_and_writes_nothing(tmp_path):
+    """scripts/measure_run_labels.py: a --runs folder the --work folder lacks is named, not a traceback."""
+    script = Path(__file__).parent.parent / "scripts" / "measure_run_labels.py"
+    out = tmp_path / "out"
+    args = [f"--work={tmp_path}", "--runs", "table1/maze10", f"--out={out}"]
+    result = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert f"--runs table1/maze10: no folder {tmp_path / 'runs' / 'table1' / 'maze10'}" in result.stderr
+    assert not out.exists()
