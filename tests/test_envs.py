@@ -164,6 +164,26 @@ def test_lunarlander_success_is_a_safe_landing_on_the_pad():
     assert terminated and successes[-1] and not any(successes[:-1])
 
 
+def test_lunarlander_goal_is_standing_on_the_pad_at_any_step_which_rest_is_not_required_for():
+    env = LunarLanderEnvConfig().make()
+    expert = make_agent("lunarlander", "expert")
+    falling = run_episodes([env], lambda observations, active: [np.array([-1.0, 0.0], dtype=np.float32)], [3])[0]
+    assert not falling.goal_reached and not falling.success  # engines off: a crash is not the goal
+
+    landed = run_episodes([env], agent_act([env], expert), [3])[0]
+    first_goal = landed.goals.index(True)
+    assert landed.success and landed.goal_reached and first_goal < len(landed) - 1  # on the pad before at rest
+
+    steps = iter(range(10_000))
+
+    def stand_then_take_off(observations, active):  # the same landing until it stands on the pad, then full throttle
+        standing = next(steps) > first_goal
+        return [np.array([1.0, 0.0], dtype=np.float32) if standing else expert(env, observations[0])]
+
+    hopper = run_episodes([env], stand_then_take_off, [3])[0]
+    assert hopper.goal_reached and not hopper.success
+
+
 def test_so101_success_is_the_plugins_succeed_flag():
     env = SO101PickPlaceEnvConfig().make()
     env.reset(seed=0)

@@ -8,6 +8,11 @@ are. Policies that concatenate the keys in that order (IUPE does) see gymnasium'
 
 Success (``info["is_success"]``), a safe landing: the episode ends with the lander at rest (asleep in Box2D, which
 is when gymnasium's +100 is paid), both legs touching the ground and its centre between the flags (|x| ≤ 0.2).
+
+The goal the IUPE cycle checks at every step (``info["goal_reached"]``, the paper's "goal reached at any step"):
+the lander stands on the pad, both legs touching between the flags, nearly still (|vx|, |vy| < 0.1) and its body
+clear of the ground. A safe landing reaches it on the way to rest; a policy that keeps firing its engines after
+standing on the pad reaches it and may still fail to come to rest.
 """
 
 from __future__ import annotations
@@ -17,11 +22,12 @@ import numpy as np
 from gymnasium.envs.box2d.lunar_lander import LunarLander, heuristic
 
 PAD_HALF_WIDTH = 0.2  # the flags stand at x = ±0.2 in the observation's units
+STILL_SPEED = 0.1  # |vx|, |vy| below this (observation units) count as standing still
 
 
 class LunarLanderEnv(gym.Wrapper):
-    """Dict observation ``agent_pos`` (6) + ``environment_state`` (2) and a safe landing as
-    ``info["is_success"]``."""
+    """Dict observation ``agent_pos`` (6) + ``environment_state`` (2), a safe landing as ``info["is_success"]`` and
+    standing on the pad as ``info["goal_reached"]``."""
 
     task_description = "Land the lander gently on the pad between the flags."
 
@@ -42,7 +48,7 @@ class LunarLanderEnv(gym.Wrapper):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = self.env.reset(seed=seed)
         self._state = np.asarray(obs, dtype=np.float32)
-        info["is_success"] = False
+        info["is_success"] = info["goal_reached"] = False
         return self._observation(), info
 
     def step(self, action):
@@ -51,7 +57,10 @@ class LunarLanderEnv(gym.Wrapper):
         self._state = np.asarray(obs, dtype=np.float32)
         at_rest = terminated and not self.env.unwrapped.lander.awake
         legs_down = obs[6] > 0 and obs[7] > 0
-        info["is_success"] = bool(at_rest and legs_down and abs(obs[0]) <= PAD_HALF_WIDTH)
+        on_pad = legs_down and abs(obs[0]) <= PAD_HALF_WIDTH
+        info["is_success"] = bool(at_rest and on_pad)
+        still = abs(obs[2]) < STILL_SPEED and abs(obs[3]) < STILL_SPEED
+        info["goal_reached"] = bool(on_pad and still and not self.env.unwrapped.game_over)
         return self._observation(), float(reward), terminated, truncated, info
 
     def _observation(self) -> dict[str, np.ndarray]:

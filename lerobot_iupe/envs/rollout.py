@@ -20,12 +20,14 @@ Act = Callable[[list[dict], list[int]], Sequence]
 @dataclass
 class Episode:
     """One played episode: ``observations`` holds s_0 … s_T (the env's dict observations), the other lists one
-    entry per step; ``successes[t]`` is ``info["is_success"]`` after step t."""
+    entry per step; ``successes[t]`` is ``info["is_success"]`` after step t, ``goals[t]`` its
+    ``info["goal_reached"]`` where the env reports one (else ``is_success`` again)."""
 
     observations: list[dict] = field(default_factory=list)
     actions: list = field(default_factory=list)
     rewards: list[float] = field(default_factory=list)
     successes: list[bool] = field(default_factory=list)
+    goals: list[bool] = field(default_factory=list)
     info: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
@@ -41,8 +43,15 @@ class Episode:
 
     @property
     def success(self) -> bool:
-        """The paper's goal criterion: the goal was reached at some step."""
+        """The env's success (what LeRobot's evaluation counts) at some step."""
         return any(self.successes)
+
+    @property
+    def goal_reached(self) -> bool:
+        """The paper's goal criterion v_e, which the IUPE cycle samples and selects by: the goal was reached at some
+        step. Envs whose success is judged at the episode's end (LunarLander: coming to rest on the pad) report
+        the goal itself per step as ``info["goal_reached"]``."""
+        return any(self.goals)
 
 
 def run_episodes(
@@ -66,6 +75,7 @@ def run_episodes(
             episode.actions.append(action)
             episode.rewards.append(float(reward))
             episode.successes.append(bool(info.get("is_success", False)))
+            episode.goals.append(bool(info.get("goal_reached", episode.successes[-1])))
             episode.info = info
             if not (terminated or truncated):
                 still.append(i)

@@ -5,8 +5,8 @@ expert batch; ``update()`` after each step is LeRobot's only in-loop hook):
 2. ``labels`` (every step): the IDM labels the expert pairs (s_t, s_{t+1}) — one draw per row when exploring, the
    mode otherwise — and the policy model takes a step on those labels;
 3. ``end_cycle`` (every ``cycle_steps`` steps): roll out the policy, record (s_t, a_t, s_{t+1}) of the same step
-   and whether the goal was reached, select the model by goal success, rebuild I^s by the sampling rule (or, for
-   BCO(α), I_pre plus the rollouts) and retrain the IDM on it.
+   and whether the goal was reached (``Episode.goal_reached``), select the model by goal success, rebuild I^s by
+   the sampling rule (or, for BCO(α), I_pre plus the rollouts) and retrain the IDM on it.
 
 Everything the cycle needs to go on exactly where it stopped is a ``TrainingState``, saved beside the checkpoint
 (``iupe_training_state.pt``, plain tensors and numbers) with one record per cycle (``iupe_cycles.jsonl``).
@@ -319,7 +319,7 @@ class IUPETrainer:
             else:
                 actions = np.asarray(episode.actions, dtype=np.int64)
             transitions.append(Transitions(observations[:-1], actions, observations[1:]))
-        successes = np.array([e.success for e in played])
+        successes = np.array([e.goal_reached for e in played])  # v_e: the goal reached at some step
         returns = np.array([e.total_reward for e in played])
         return transitions, successes, returns
 
