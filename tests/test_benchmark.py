@@ -142,3 +142,11 @@ def test_run_labels_script_names_a_missing_runs_folder_and_writes_nothing(tmp_pa
     assert result.returncode == 2
     assert f"--runs table1/maze10: no folder {tmp_path / 'runs' / 'table1' / 'maze10'}" in result.stderr
     assert not out.exists()
+
+
+def test_goal_script_names_a_checkpoint_folder_without_config(tmp_path):
+    """scripts/measure_goal.py: a --checkpoint that is not a pretrained_model folder is named, not a traceback."""
+    script = Path(__file__).parent.parent / "scripts" / "measure_goal.py"
+    result = subprocess.run([sys.executable, str(script), f"--checkpoint={tmp_path}"], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert f"--checkpoint={tmp_path} holds no config.json" in result.stderr

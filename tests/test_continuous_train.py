@@ -119,7 +119,7 @@ def test_rollouts_run_in_a_lerobot_env_plugins_own_env_type():
     policy = IUPEPolicy(config)
     trainer = IUPETrainer(policy, dataset_meta=None, seed=0)
     trainer.use_env(env_cfg)
-    episodes, successes, returns = trainer.rollout(2, seed=0, explore=True)
+    episodes, successes, returns, _ = trainer.rollout(2, seed=0, explore=True)
     assert [len(e) for e in episodes] == [6, 6]
     assert episodes[0].states.shape == (6, 17) and episodes[0].actions.shape == (6, 4)
     assert (episodes[0].actions >= space.low).all() and (episodes[0].actions <= space.high).all()

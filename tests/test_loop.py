@@ -143,7 +143,7 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     assert len(pre_held) == n_pre // 10
     assert idm_trainings.calls[0][0] == (pre, pre_held)  # the first IDM: I_pre less its held-out tenth
     mixed = 0
-    for (_, kwargs, (episodes, successes, _)), (args, _, sampled), ((trained, held), _, _) in zip(
+    for (_, kwargs, (episodes, successes, _, _)), (args, _, sampled), ((trained, held), _, _) in zip(
         rollouts.calls, sampled_sets.calls, idm_trainings.calls[1:], strict=True
     ):
         _, successful, _, size, _ = args
@@ -206,7 +206,7 @@ def test_without_exploration_labels_and_rollouts_take_the_argmax(maze_expert, ma
 def test_rollout_records_state_action_and_next_state_of_the_same_step(cartpole_expert, cartpole_random):
     policy = build(cartpole_expert, cartpole_random)
     policy.forward(frame_batch(cartpole_expert, 16))
-    episodes, successes, returns = policy.trainer.rollout(3, seed=4242, explore=True)
+    episodes, successes, returns, _ = policy.trainer.rollout(3, seed=4242, explore=True)
     env = policy.trainer.env_cfg.make()
     for i, episode in enumerate(episodes):
         observation, _ = env.reset(seed=4242 + i)

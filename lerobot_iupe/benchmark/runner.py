@@ -402,4 +402,8 @@ def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
         where = f"the last {layouts} demonstration layouts, which the demonstration-layout evaluation does not play"
     else:
         where = "the expert dataset's own (demonstration) layouts, which the evaluation also plays"
-    return f"best rollout success of a cycle ({len(cycles)} cycles × {episodes} episodes, latest on ties), on {where}"
+    rule = "the env's success, then the goal reached at any step, " if "env_success_rate" in cycles[0] else ""
+    return (
+        f"best rollout success of a cycle ({rule}{len(cycles)} cycles × {episodes} episodes, latest on ties), "
+        f"on {where}"
+    )

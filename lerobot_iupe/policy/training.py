@@ -222,12 +222,15 @@ class IUPETrainer:
         state.cycle += 1
         seed = 1_000_000 * (1 + state.rank) + self.seed * 100_003 + state.cycle * cfg.rollout_episodes
         start = time.perf_counter()
-        episodes, successes, returns = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
+        rollouts = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
+        episodes, successes, returns, env_successes = rollouts
         state.rollouts_s += time.perf_counter() - start
-        success_rate = float(successes.mean())
-        selected = success_rate >= state.best_success
+        success_rate, env_success_rate = float(successes.mean()), float(env_successes.mean())
+        # The env's own success (what lerobot-eval counts) first, the goal at any step on ties; the same thing for
+        # envs that report no separate goal.
+        selected = (env_success_rate, success_rate) >= (state.best_env_success, state.best_success)
         if selected:
-            state.best_success = success_rate
+            state.best_env_success, state.best_success = env_success_rate, success_rate
             self.selected_weights = copy.deepcopy(self.policy.state_dict())
         pre = state.pre
         good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
@@ -260,6 +263,7 @@ class IUPETrainer:
             "step": state.step,
             "rollout_seed": seed,
             "success_rate": success_rate,
+            "env_success_rate": env_success_rate,
             "return": float(returns.mean()),
             "selected": selected,
             "best_success": state.best_success,
@@ -273,16 +277,20 @@ class IUPETrainer:
         }
         state.cycles.append(record)
         log.info(
-            f"IUPE cycle {state.cycle}: success r={success_rate:.2f} return={record['return']:.1f} "
+            f"IUPE cycle {state.cycle}: success r={success_rate:.2f} (env's {env_success_rate:.2f}) "
+            f"return={record['return']:.1f} "
             f"IDM {self.idm_metric}={record[self.idm_metric]:.3f} label spread={record['label_non_map']:.3f} "
             f"|I^s|={len(sampled)} best r={state.best_success:.2f} "
             f"time so far: rollouts {state.rollouts_s:.2f}s IDM {state.idm_s:.2f}s"
         )
 
     @torch.no_grad()
-    def rollout(self, episodes: int, seed: int, explore: bool) -> tuple[list[Transitions], np.ndarray, np.ndarray]:
+    def rollout(
+        self, episodes: int, seed: int, explore: bool
+    ) -> tuple[list[Transitions], np.ndarray, np.ndarray, np.ndarray]:
         """The policy model in ``episodes`` envs at once (batched inference), one episode each, env ``i`` seeded
         ``seed + i`` (mazes: the expert dataset's layouts in turn); in eval mode (batch-norm statistics kept).
+        Returns each episode's transitions, goal reached (v_e), return and the env's own success.
         Envs are made once by LeRobot's ``make_env`` (any LeRobot env type) and reused by every cycle."""
         policy = self.policy
         if len(self.envs) < episodes:
@@ -321,7 +329,7 @@ class IUPETrainer:
             transitions.append(Transitions(observations[:-1], actions, observations[1:]))
         successes = np.array([e.goal_reached for e in played])  # v_e: the goal reached at some step
         returns = np.array([e.total_reward for e in played])
-        return transitions, successes, returns
+        return transitions, successes, returns, np.array([e.success for e in played])
 
     def observation(self, env_observation_dict: dict) -> np.ndarray:
         """The policy's input from one env observation: its keys (cameras (H, W, C) → (C, H, W)) joined in

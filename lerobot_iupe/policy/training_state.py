@@ -29,7 +29,8 @@ class TrainingState:
     idm_optimizer: torch.optim.Optimizer
     step: int = 0
     cycle: int = 0
-    best_success: float = -1.0
+    best_success: float = -1.0  # the goal rate r of the selected cycle
+    best_env_success: float = -1.0  # and its rate of the env's own success (selection compares this first)
     rollouts_s: float = 0.0  # cumulative seconds, for the benchmark's time breakdown
     idm_s: float = 0.0
     cycles: list[dict] = field(default_factory=list)
@@ -39,6 +40,7 @@ class TrainingState:
             "step": self.step,
             "cycle": self.cycle,
             "best_success": self.best_success,
+            "best_env_success": self.best_env_success,
             "seed": self.seed,
             "rng": self.rng.bit_generator.state,
             "torch_rng": None if self.torch_rng is None else self.torch_rng.get_state(),
@@ -52,6 +54,7 @@ class TrainingState:
         self.step, self.cycle, self.best_success, self.seed = (
             saved["step"], saved["cycle"], saved["best_success"], saved["seed"],
         )  # fmt: skip
+        self.best_env_success = saved.get("best_env_success", self.best_success)  # states saved before it existed
         self.rollouts_s, self.idm_s = saved["seconds"]["rollouts"], saved["seconds"]["idm"]
         self.rng.bit_generator.state = saved["rng"]
         if self.torch_rng is not None and saved["torch_rng"] is not None:
