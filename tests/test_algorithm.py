@@ -10,6 +10,7 @@ from lerobot_iupe.policy.algorithm import (
     held_out_split,
     performance,
     sampling_counts,
+    selects,
     success_action_distribution,
 )
 
@@ -153,3 +154,14 @@ def test_held_out_split_never_takes_every_item_of_a_class_from_training():
         if 0 not in plain_held:  # the same split as without classes whenever no class is lost
             assert np.array_equal(train, plain_train) and np.array_equal(held, plain_held)
     assert any(0 in held_out_split(50, np.random.default_rng(seed))[1] for seed in range(50))  # the case occurs
+
+
+def test_selection_compares_the_envs_success_first_then_the_goal_and_the_latest_wins_ties():
+    # LunarLander: rollouts that stand on the pad every time but never come to rest do not replace a model whose
+    # rollouts came to rest 8 times in 10
+    assert not selects(0.0, 1.0, best=(0.8, 0.9))
+    assert selects(0.9, 0.1, best=(0.8, 1.0))
+    assert selects(0.0, 0.7, best=(0.0, 0.5))  # no rest anywhere: the goal decides
+    assert not selects(0.0, 0.4, best=(0.0, 0.5))
+    assert selects(0.5, 0.5, best=(0.5, 0.5))  # a tie: the latest cycle
+    assert selects(0.0, 0.0, best=(-1.0, -1.0))  # the first cycle is always selected

@@ -144,6 +144,13 @@ class ActionCells:
         return out
 
 
+def selects(env_success_rate: float, goal_rate: float, best: tuple[float, float]) -> bool:
+    """Model selection (never by reward): a cycle's rollouts replace the selected model when their rate of the env's
+    own success (what lerobot-eval counts) is higher, or equal with a goal rate at least as high; ``best`` holds
+    the selected cycle's (env success, goal) rates, (-1, -1) before any. Ties go to the latest cycle."""
+    return (env_success_rate, goal_rate) >= best
+
+
 def held_out_split(
     n: int, rng: np.random.Generator, fraction: float = 0.1, classes: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:

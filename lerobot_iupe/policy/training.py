@@ -38,6 +38,7 @@ from lerobot_iupe.policy.algorithm import (
     build_sampled_set,
     held_out_split,
     r_squared,
+    selects,
     success_action_distribution,
 )
 from lerobot_iupe.policy.train_run import resuming
@@ -226,9 +227,7 @@ class IUPETrainer:
         episodes, successes, returns, env_successes = rollouts
         state.rollouts_s += time.perf_counter() - start
         success_rate, env_success_rate = float(successes.mean()), float(env_successes.mean())
-        # The env's own success (what lerobot-eval counts) first, the goal at any step on ties; the same thing for
-        # envs that report no separate goal.
-        selected = (env_success_rate, success_rate) >= (state.best_env_success, state.best_success)
+        selected = selects(env_success_rate, success_rate, (state.best_env_success, state.best_success))
         if selected:
             state.best_env_success, state.best_success = env_success_rate, success_rate
             self.selected_weights = copy.deepcopy(self.policy.state_dict())
