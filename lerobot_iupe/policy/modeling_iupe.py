@@ -2,7 +2,7 @@
 LeRobot checkpoint. This module is LeRobot's API only; the algorithm that trains them inside ``lerobot-train``
 is ``training.py``, the networks ``networks.py``.
 
-The checkpoint LeRobot saves holds the *selected* model (best rollout success, latest on ties) as its weights, and
+The checkpoint LeRobot saves holds the *selected* model (``algorithm.selects``) as its weights, and
 beside them what the algorithm needs to go on exactly where it stopped (``training.TrainingState``). Training from
 such a checkpoint with ``--resume=true`` continues from that state; ``--policy.path`` alone starts a new run
 from its weights (``train_run``).

@@ -5,8 +5,9 @@ expert batch; ``update()`` after each step is LeRobot's only in-loop hook):
 2. ``labels`` (every step): the IDM labels the expert pairs (s_t, s_{t+1}) — one draw per row when exploring, the
    mode otherwise — and the policy model takes a step on those labels;
 3. ``end_cycle`` (every ``cycle_steps`` steps): roll out the policy, record (s_t, a_t, s_{t+1}) of the same step
-   and whether the goal was reached (``Episode.goal_reached``), select the model by goal success, rebuild I^s by
-   the sampling rule (or, for BCO(α), I_pre plus the rollouts) and retrain the IDM on it.
+   and whether the goal was reached (``Episode.goal_reached``), select the model by the env's own success and then
+   the goal (``algorithm.selects``), rebuild I^s by the sampling rule (or, for BCO(α), I_pre plus the rollouts)
+   and retrain the IDM on it.
 
 Everything the cycle needs to go on exactly where it stopped is a ``TrainingState``, saved beside the checkpoint
 (``iupe_training_state.pt``, plain tensors and numbers) with one record per cycle (``iupe_cycles.jsonl``).
@@ -60,7 +61,7 @@ class IUPETrainer:
         self.resume = resuming()
         self.state: TrainingState | None = None
         self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
-        self.selected_weights: dict[str, Tensor] | None = None  # best rollout success so far (latest on ties)
+        self.selected_weights: dict[str, Tensor] | None = None  # the model ``algorithm.selects`` kept so far
         self.envs: list = []  # rollout envs, created once and reused by every cycle
         self.layouts: list[int] = []  # maze: the layout ids rollouts cycle through (--policy.rollout_layouts)
         self.env_cfg = None  # the rollout env, set by check_inputs
