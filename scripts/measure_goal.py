@@ -12,38 +12,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-import torch
-
-from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys
-from lerobot_iupe.envs.rollout import run_episodes
+from lerobot_iupe.envs.configs import env_config_from_settings
 from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
+from lerobot_iupe.policy.training import IUPETrainer
 
 
 def measure(checkpoint: Path, episodes: int, seed: int, rule: str) -> dict[str, float]:
+    """The IUPE cycle's own rollout (batched, envs made by LeRobot's ``make_env``), by the mode or by draws."""
     policy = IUPEPolicy.from_pretrained(checkpoint)
-    policy.config.eval_mode = rule
-    policy.eval()
-    env_cfg = env_config_from_settings(policy.config.env_settings)
-    keys = env_observation_keys(env_cfg)  # env key -> the policy's key
-    torch.manual_seed(seed)
-    played = []
-    for episode_seed in range(seed, seed + episodes):  # one env at a time: select_action keeps one history
-        env = env_cfg.make()
-        policy.reset()
-
-        def act(observations: list[dict], active: list[int]) -> list:
-            batch = {key: torch.as_tensor(env_observation(observations[0], k))[None] for k, key in keys.items()}
-            with torch.no_grad():
-                return [policy.select_action(batch)[0].numpy()]
-
-        played += run_episodes([env], act, [episode_seed])
-        env.close()
-    return {
-        "goal_reached": float(np.mean([e.goal_reached for e in played])),
-        "is_success": float(np.mean([e.success for e in played])),
-        "return": float(np.mean([e.total_reward for e in played])),
-    }
+    trainer = IUPETrainer(policy, dataset_meta=None, seed=seed)
+    trainer.use_env(env_config_from_settings(policy.config.env_settings))
+    _, goals, returns, successes = trainer.rollout(episodes, seed, explore=rule == "sample")
+    return {"goal_reached": float(goals.mean()), "is_success": float(successes.mean()), "return": float(returns.mean())}
 
 
 def main() -> None:
