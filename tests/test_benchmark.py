@@ -151,3 +151,12 @@ def test_goal_script_names_a_checkpoint_folder_without_config(tmp_path):
     result = subprocess.run([sys.executable, str(script), f"--checkpoint={tmp_path}"], capture_output=True, text=True)
     assert result.returncode == 2
     assert f"--checkpoint={tmp_path} holds no config.json" in result.stderr
+
+
+def test_mode_script_names_a_data_folder_that_is_not_a_dataset(tmp_path):
+    """scripts/measure_mode.py: a --data folder without meta/info.json is named, not a traceback."""
+    script = Path(__file__).parent.parent / "scripts" / "measure_mode.py"
+    args = [f"--data={tmp_path}", "--checkpoints", str(tmp_path)]
+    result = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert f"--data={tmp_path} is not a LeRobot dataset (no meta/info.json)" in result.stderr
