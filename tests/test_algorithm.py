@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 import torch
 
+from lerobot_iupe.policy import IUPEConfig
 from lerobot_iupe.policy.algorithm import (
     Transitions,
     apportion,
@@ -165,3 +166,18 @@ def test_selection_compares_the_envs_success_first_then_the_goal_and_the_latest_
     assert not selects(0.0, 0.4, best=(0.0, 0.5))
     assert selects(0.5, 0.5, best=(0.5, 0.5))  # a tie: the latest cycle
     assert selects(0.0, 0.0, best=(-1.0, -1.0))  # the first cycle is always selected
+
+
+def test_the_model_is_selected_on_episodes_played_as_lerobot_eval_plays_them():
+    # IUPE's rollouts draw (exploration) while lerobot-eval plays the mode: episodes of their own, as many as the
+    # rollouts unless told
+    assert IUPEConfig().separate_selection_episodes == IUPEConfig().rollout_episodes
+    assert IUPEConfig(rollout_episodes=7, selection_episodes=30).separate_selection_episodes == 30
+    assert IUPEConfig(selection_episodes=0).separate_selection_episodes == 0  # the paper's rule: the rollouts
+    # BCO(α)'s rollouts play the mode, and an exploring policy evaluated by draws plays as its rollouts do: the
+    # rollouts themselves are those episodes
+    assert IUPEConfig(exploration=False).separate_selection_episodes == 0
+    assert IUPEConfig(eval_mode="sample").separate_selection_episodes == 0
+    assert IUPEConfig(exploration=False, eval_mode="sample").separate_selection_episodes == 20
+    with pytest.raises(ValueError, match="--policy.selection_episodes"):
+        IUPEConfig(selection_episodes=-1)

@@ -45,11 +45,15 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     demo_random, heldout_random = ({r["R_random"] for r in records if r["eval_layouts"] == lay} for lay in LAYOUTS)
     assert demo_random != heldout_random
     # each row says how its checkpoint was selected; maze rollouts select on the demonstration layouts
+    # (BCO(α) on its rollouts, which play the mode; IUPE, whose rollouts draw, on 4 episodes of its own by the mode)
     rule = "best rollout success of a cycle (the env's success, then the goal reached at any step, 2 cycles × 4 "
-    assert all(r["selection"].startswith(rule) for r in trained)
+    assert all(r["selection"].startswith(rule) for r in trained if r["method"] == "bco")
+    own = "best success of a cycle on 4 episodes of its own played by the mode (as lerobot-eval plays), the same "
+    assert all(r["selection"].startswith(own) for r in trained if r["method"] == "iupe")
     assert {"demonstration" in r["selection"] for r in trained if r["env"] == "maze3"} == {True}
     assert all(r["train_seconds"] > 0 and r["cycles"] for r in trained)
     assert all(r["timing"]["idm_s"] > 0 and r["timing"]["rollouts_s"] > 0 for r in trained)
+    assert {r["method"]: r["timing"]["selection_s"] > 0 for r in trained} == {"bco": False, "iupe": True}
     report = (out / "results.md").read_text()
     assert "IUPE (paper)" in report and "held-out layouts" in report and "Where the time goes" in report
     for plot in ("cycles.png", "performance.png"):  # real figures: decodable PNGs with something drawn on them
@@ -118,6 +122,11 @@ def test_records_are_keyed_by_everything_that_determines_them():
     changed = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"idm_lr": "1e-2"}))
     assert run.config_key(100) != dataclasses.replace(run, preset=changed).config_key(100)
     assert run.config_key(100) != run.config_key(50)
+    # rows selected on the exploring rollouts (before selection episodes existed) are not taken for today's IUPE
+    paper = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"selection_episodes": "0"}))
+    assert run.plays_selection_episodes and not dataclasses.replace(run, preset=paper).plays_selection_episodes
+    assert not dataclasses.replace(run, method="bco").plays_selection_episodes
+    assert run.config_key(100) != dataclasses.replace(run, preset=paper).config_key(100)
     assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)
 
 
@@ -126,7 +135,10 @@ def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):
     log = "INFO step:25 smpl:3K ep:5 epch:0.1 loss:0.6 grdn:1 lr:1e-03 updt_s:0.010 data_s:0.100\n"
     cycles, timing = read_training_run(checkpoint, log, steps=200)
     assert [c["cycle"] for c in cycles] == [1, 2, 3, 4] and [c["step"] for c in cycles] == [50, 100, 150, 200]
-    assert timing == {"rollouts_s": cycles[-1]["rollouts_s"], "idm_s": cycles[-1]["idm_s"], "data_loading_s": 20.0}
+    assert timing == {
+        "rollouts_s": cycles[-1]["rollouts_s"], "idm_s": cycles[-1]["idm_s"],
+        "selection_s": cycles[-1]["selection_s"], "data_loading_s": 20.0,
+    }  # fmt: skip
 
 
 def test_cells_give_the_sample_standard_deviation_over_seeds():

@@ -67,6 +67,7 @@ def read_training_run(checkpoint: Path, output: str, steps: int) -> tuple[list[d
     timing = {
         "rollouts_s": cycles[-1]["rollouts_s"] if cycles else 0.0,
         "idm_s": cycles[-1]["idm_s"] if cycles else 0.0,
+        "selection_s": cycles[-1].get("selection_s", 0.0) if cycles else 0.0,
         "data_loading_s": float(np.mean(data_avg)) * steps if data_avg else 0.0,
     }
     return cycles, timing

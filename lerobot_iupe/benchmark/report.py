@@ -213,8 +213,9 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
     lines += [f"- {rule}: {', '.join(rows)}" for rule, rows in sorted(by_rule.items())]
     lines += ["", "## Where the time goes (mean seconds per training run)", ""]
     lines += [
-        "| table | env | method | runs | train (wall) | rollouts | IDM training | data loading | PM + other | eval |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| table | env | method | runs | train (wall) | rollouts | selection episodes | IDM training | data loading "
+        "| PM + other | eval |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     trained = [r for r in records if r["seed"] is not None]
     keys = sorted({(r["table"], r["env"], r["method"]) for r in trained}, key=str)
@@ -223,11 +224,11 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
         mean = lambda k, rows=rows: float(np.mean([r["timing"].get(k, 0.0) for r in rows]))  # noqa: E731
         train = float(np.mean([r["train_seconds"] for r in rows]))
         evals = float(np.mean([sum(v for k, v in r["timing"].items() if k.startswith("evaluation")) for r in rows]))
-        other = train - mean("rollouts_s") - mean("idm_s") - mean("data_loading_s")
+        other = train - mean("rollouts_s") - mean("selection_s") - mean("idm_s") - mean("data_loading_s")
         lines.append(
             f"| {table} | {ENV_NAMES.get(env, env)} | {METHOD_NAMES.get(method, method)} | {len(rows)} | {train:.1f} "
-            f"| {mean('rollouts_s'):.1f} | {mean('idm_s'):.1f} | {mean('data_loading_s'):.1f} | {other:.1f} "
-            f"| {evals:.1f} |"
+            f"| {mean('rollouts_s'):.1f} | {mean('selection_s'):.1f} | {mean('idm_s'):.1f} "
+            f"| {mean('data_loading_s'):.1f} | {other:.1f} | {evals:.1f} |"
         )
     for table in sorted({r["table"] for r in trained}):
         rows = _first_rows(_group(trained, table=table))

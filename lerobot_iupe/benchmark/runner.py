@@ -131,7 +131,19 @@ class Run:
         key = [self.preset.data_key(self.quick), train, eval_episodes, self.preset.eval_modes]
         if self.preset.rollout_layouts:  # the evaluated layouts depend on it (also for the built-in agents)
             key.append([self.preset.scored_episodes(layouts, eval_episodes) for layouts in self.preset.layouts])
+        if self.plays_selection_episodes:  # rows selected on the exploring rollouts (older code) are not these
+            key.append("selection on episodes played as lerobot-eval plays")
         return digest(key)
+
+    @property
+    def plays_selection_episodes(self) -> bool:
+        """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default)."""
+        flags = self.train_flags
+        return (
+            self.method not in ("expert", "random", "bc")
+            and "--policy.exploration=false" not in flags
+            and "--policy.selection_episodes=0" not in flags
+        )
 
     @property
     def cost(self) -> float:
@@ -403,6 +415,13 @@ def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
     else:
         where = "the expert dataset's own (demonstration) layouts, which the evaluation also plays"
     rule = "the env's success, then the goal reached at any step, " if "env_success_rate" in cycles[0] else ""
+    if cycles[0].get("selection_s") is not None and cycles[-1]["selection_s"] > 0:
+        played = "a draw" if config.get("eval_mode") == "sample" else "the mode"
+        return (
+            f"best success of a cycle on {cycles[0]['selection_episodes']} episodes of its own played by {played} "
+            f"(as lerobot-eval plays), the same start seeds every cycle ({rule}{len(cycles)} cycles, latest on "
+            f"ties), on {where}"
+        )
     return (
         f"best rollout success of a cycle ({rule}{len(cycles)} cycles × {episodes} episodes, latest on ties), "
         f"on {where}"

@@ -84,6 +84,11 @@ class IUPEConfig(PreTrainedConfig):
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
     rollout_episodes: int = 20
+    # The model is selected on episodes played as lerobot-eval plays them (eval_mode), the same start seeds every
+    # cycle so that cycles are compared on one set: the cycle's rollouts when they already play that way (no
+    # exploration), else this many more episodes per cycle. None = rollout_episodes; 0 = select on the exploring
+    # rollouts themselves (the paper's rule, whose draws are not what lerobot-eval plays).
+    selection_episodes: int | None = None
     # Mazes: the rollouts (whose success also selects the model) play only the expert dataset's last K layouts;
     # 0 = all of them. An evaluation on the other layouts then never plays a layout the selection saw.
     rollout_layouts: int = 0
@@ -123,6 +128,10 @@ class IUPEConfig(PreTrainedConfig):
         super().__post_init__()
         if self.cycle_steps <= 0 or self.rollout_episodes <= 0:
             raise ValueError("--policy.cycle_steps and --policy.rollout_episodes must be positive")
+        if self.selection_episodes is not None and self.selection_episodes < 0:
+            raise ValueError(
+                f"--policy.selection_episodes must be 0 (select on the rollouts) or more, got {self.selection_episodes}"
+            )
         if self.rollout_layouts < 0:
             raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")
         if self.eval_mode not in EVAL_MODES:
@@ -164,6 +173,18 @@ class IUPEConfig(PreTrainedConfig):
     @property
     def drop_n_last_frames(self) -> int:
         return 1  # the last frame of an episode has no successor
+
+    @property
+    def rollouts_play_eval_mode(self) -> bool:
+        """Whether the cycle's rollouts act as lerobot-eval does (draws exactly when eval_mode is "sample")."""
+        return self.exploration == (self.eval_mode == "sample")
+
+    @property
+    def separate_selection_episodes(self) -> int:
+        """Episodes played each cycle only to select the model; 0 = the selection reads the cycle's rollouts."""
+        if self.selection_episodes == 0 or (self.selection_episodes is None and self.rollouts_play_eval_mode):
+            return 0
+        return self.rollout_episodes if self.selection_episodes is None else self.selection_episodes
 
     @property
     def observation_key(self) -> str:

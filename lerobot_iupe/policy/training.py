@@ -228,9 +228,14 @@ class IUPETrainer:
         episodes, successes, returns, env_successes = rollouts
         state.rollouts_s += time.perf_counter() - start
         success_rate, env_success_rate = float(successes.mean()), float(env_successes.mean())
-        selected = selects(env_success_rate, success_rate, (state.best_env_success, state.best_success))
+        judged = {"goal": success_rate, "env": env_success_rate}
+        if cfg.separate_selection_episodes:
+            start = time.perf_counter()
+            judged = self.selection_rates(cfg.separate_selection_episodes)
+            state.selection_s += time.perf_counter() - start
+        selected = selects(judged["env"], judged["goal"], (state.best_env_success, state.best_success))
         if selected:
-            state.best_env_success, state.best_success = env_success_rate, success_rate
+            state.best_env_success, state.best_success = judged["env"], judged["goal"]
             self.selected_weights = copy.deepcopy(self.policy.state_dict())
         pre = state.pre
         good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
@@ -265,6 +270,9 @@ class IUPETrainer:
             "success_rate": success_rate,
             "env_success_rate": env_success_rate,
             "return": float(returns.mean()),
+            "selection_episodes": cfg.separate_selection_episodes or cfg.rollout_episodes,
+            "selection_env_success_rate": judged["env"],
+            "selection_goal_rate": judged["goal"],
             "selected": selected,
             "best_success": state.best_success,
             "sampled_set_size": len(sampled),
@@ -274,6 +282,7 @@ class IUPETrainer:
             "label_non_map": self.stats.get("label_non_map", 0.0),
             "rollouts_s": state.rollouts_s,
             "idm_s": state.idm_s,
+            "selection_s": state.selection_s,
         }
         state.cycles.append(record)
         log.info(
@@ -283,6 +292,13 @@ class IUPETrainer:
             f"|I^s|={len(sampled)} best r={state.best_success:.2f} "
             f"time so far: rollouts {state.rollouts_s:.2f}s IDM {state.idm_s:.2f}s"
         )
+
+    def selection_rates(self, episodes: int) -> dict[str, float]:
+        """The goal and env-success rates of ``episodes`` played as lerobot-eval plays (``eval_mode``), from the
+        same start seeds every cycle (apart from the rollouts' and the benchmark's evaluation seeds)."""
+        seed = 1_000_000 * (1 + self.state.rank) + self.seed * 100_003 + 50_000
+        _, goals, _, env_successes = self.rollout(episodes, seed, explore=self.config.eval_mode == "sample")
+        return {"goal": float(goals.mean()), "env": float(env_successes.mean())}
 
     @torch.no_grad()
     def rollout(

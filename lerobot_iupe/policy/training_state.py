@@ -33,6 +33,7 @@ class TrainingState:
     best_env_success: float = -1.0  # and its rate of the env's own success (selection compares this first)
     rollouts_s: float = 0.0  # cumulative seconds, for the benchmark's time breakdown
     idm_s: float = 0.0
+    selection_s: float = 0.0  # episodes played only to select the model
     cycles: list[dict] = field(default_factory=list)
 
     def saved(self, latest_weights: dict[str, Tensor]) -> dict:
@@ -46,7 +47,7 @@ class TrainingState:
             "torch_rng": None if self.torch_rng is None else self.torch_rng.get_state(),
             "idm_optimizer": self.idm_optimizer.state_dict(),
             "latest_weights": latest_weights,
-            "seconds": {"rollouts": self.rollouts_s, "idm": self.idm_s},
+            "seconds": {"rollouts": self.rollouts_s, "idm": self.idm_s, "selection": self.selection_s},
             "cycles": self.cycles,
         }
 
@@ -56,6 +57,7 @@ class TrainingState:
         )  # fmt: skip
         self.best_env_success = saved.get("best_env_success", self.best_success)  # states saved before it existed
         self.rollouts_s, self.idm_s = saved["seconds"]["rollouts"], saved["seconds"]["idm"]
+        self.selection_s = saved["seconds"].get("selection", 0.0)
         self.rng.bit_generator.state = saved["rng"]
         if self.torch_rng is not None and saved["torch_rng"] is not None:
             self.torch_rng.set_state(saved["torch_rng"])
