@@ -125,7 +125,9 @@ def test_records_are_keyed_by_everything_that_determines_them():
     # rows selected on the exploring rollouts (before selection episodes existed) are not taken for today's IUPE
     paper = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"selection_episodes": "0"}))
     assert run.plays_selection_episodes and not dataclasses.replace(run, preset=paper).plays_selection_episodes
-    assert not dataclasses.replace(run, method="bco").plays_selection_episodes
+    assert not dataclasses.replace(run, method="bco").plays_selection_episodes  # its rollouts play the mode
+    twenty = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"selection_episodes": "20"}))
+    assert Run("table1", "cartpole", twenty, "bco", 0, {}, {}).plays_selection_episodes  # told to: its own
     assert run.config_key(100) != dataclasses.replace(run, preset=paper).config_key(100)
     assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)
 

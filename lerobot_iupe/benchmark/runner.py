@@ -139,11 +139,10 @@ class Run:
     def plays_selection_episodes(self) -> bool:
         """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default)."""
         flags = self.train_flags
-        return (
-            self.method not in ("expert", "random", "bc")
-            and "--policy.exploration=false" not in flags
-            and "--policy.selection_episodes=0" not in flags
-        )
+        given = [f.split("=", 1)[1] for f in flags if f.startswith("--policy.selection_episodes=")]
+        if self.method in ("expert", "random", "bc") or given == ["0"]:
+            return False
+        return bool(given) or "--policy.exploration=false" not in flags
 
     @property
     def cost(self) -> float:

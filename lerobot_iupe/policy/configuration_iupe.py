@@ -84,10 +84,10 @@ class IUPEConfig(PreTrainedConfig):
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
     rollout_episodes: int = 20
-    # The model is selected on episodes played as lerobot-eval plays them (eval_mode), the same start seeds every
-    # cycle so that cycles are compared on one set: the cycle's rollouts when they already play that way (no
-    # exploration), else this many more episodes per cycle. None = rollout_episodes; 0 = select on the exploring
-    # rollouts themselves (the paper's rule, whose draws are not what lerobot-eval plays).
+    # The model is selected on episodes played as lerobot-eval plays them (eval_mode). N > 0: N episodes of their
+    # own every cycle, from the same start seeds every cycle so that cycles are compared on one set. None: the
+    # cycle's rollouts when they already play that way (no exploration), else as many episodes of their own as the
+    # rollouts. 0: the rollouts themselves, also when they draw (the paper's rule; not what lerobot-eval plays).
     selection_episodes: int | None = None
     # Mazes: the rollouts (whose success also selects the model) play only the expert dataset's last K layouts;
     # 0 = all of them. An evaluation on the other layouts then never plays a layout the selection saw.
