@@ -289,8 +289,10 @@ class IUPETrainer:
             f"IUPE cycle {state.cycle}: success r={success_rate:.2f} (env's {env_success_rate:.2f}) "
             f"return={record['return']:.1f} "
             f"IDM {self.idm_metric}={record[self.idm_metric]:.3f} label spread={record['label_non_map']:.3f} "
-            f"|I^s|={len(sampled)} best r={state.best_success:.2f} "
-            f"time so far: rollouts {state.rollouts_s:.2f}s IDM {state.idm_s:.2f}s"
+            f"|I^s|={len(sampled)} selection on {record['selection_episodes']} episodes: env's "
+            f"{judged['env']:.2f}, goal {judged['goal']:.2f} (best {state.best_env_success:.2f}, "
+            f"{state.best_success:.2f}{', selected' if selected else ''}) "
+            f"time so far: rollouts {state.rollouts_s:.2f}s selection {state.selection_s:.2f}s IDM {state.idm_s:.2f}s"
         )
 
     def selection_rates(self, episodes: int) -> dict[str, float]:
