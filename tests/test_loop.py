@@ -142,9 +142,20 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     n_pre = len(pre) + len(pre_held)
     assert len(pre_held) == n_pre // 10
     assert idm_trainings.calls[0][0] == (pre, pre_held)  # the first IDM: I_pre less its held-out tenth
+    # each cycle: 8 drawing rollouts, then 8 episodes of its own by the argmax (as lerobot-eval plays) from the same
+    # start seeds every cycle, whose rates select the model
+    drawing = [c for c in rollouts.calls if c[1]["explore"]]
+    selecting = [c for c in rollouts.calls if not c[1]["explore"]]
+    assert len(drawing) == len(selecting) == 3 and len({c[0] for c in selecting}) == 1
+    for cycle, (_, _, (_, goals, _, env_successes)) in zip(policy.cycles, selecting, strict=True):
+        assert cycle["selection_episodes"] == len(goals) == 8
+        assert (cycle["selection_env_success_rate"], cycle["selection_goal_rate"]) == (
+            env_successes.mean(),
+            goals.mean(),
+        )
     mixed = 0
     for (_, kwargs, (episodes, successes, _, _)), (args, _, sampled), ((trained, held), _, _) in zip(
-        rollouts.calls, sampled_sets.calls, idm_trainings.calls[1:], strict=True
+        drawing, sampled_sets.calls, idm_trainings.calls[1:], strict=True
     ):
         _, successful, _, size, _ = args
         expected = Transitions.concat([e for e, ok in zip(episodes, successes, strict=True) if ok] or [pre.take([])])
@@ -164,7 +175,7 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     played = {env.unwrapped.layout.layout_id for env in policy.trainer.envs}
     assert played <= set(read_iupe_meta(maze_expert)["layout_ids"])
     # rollouts act by sampling: some actions are not the policy's argmax
-    episodes = rollouts.calls[-1][2][0]
+    episodes = drawing[-1][2][0]
     states = torch.as_tensor(np.concatenate([e.states for e in episodes]))
     actions = np.concatenate([e.actions for e in episodes])
     assert (policy.pm_output(states).argmax(-1).numpy() != actions).any()
@@ -181,10 +192,10 @@ def test_rollouts_play_only_the_last_rollout_layouts_of_the_expert_dataset(maze_
     policy = build(maze_expert, maze_random, rollout_layouts=2)
     played = []
     monkeypatch.setattr(training, "run_episodes", Spy(training.run_episodes))
-    train_steps(policy, maze_expert, 4)  # two cycles of 4 rollouts
+    train_steps(policy, maze_expert, 4)  # two cycles of 4 rollouts and 4 selection episodes
     for (_, _, _, options), _, _ in training.run_episodes.calls:
         played += [option["layout_id"] for option in options]
-    assert len(demonstrated) > 2 and len(played) == 8
+    assert len(demonstrated) > 2 and len(played) == 16
     assert set(played) == set(demonstrated[-2:])  # the selection never plays the other demonstrated layouts
     too_many = build(maze_expert, maze_random, rollout_layouts=len(demonstrated))
     with pytest.raises(ValueError, match=f"--policy.rollout_layouts={len(demonstrated)} must be below"):
