@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 from lerobot_iupe.benchmark.evaluation import EVAL_SEED, evaluate_agent, evaluate_checkpoint, read_training_run
 from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags
 from lerobot_iupe.policy.algorithm import performance
+from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 
 BIN = Path(sys.executable).parent
 CHECKPOINT = "checkpoints/last/pretrained_model"
@@ -138,11 +139,16 @@ class Run:
     @property
     def plays_selection_episodes(self) -> bool:
         """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default)."""
-        flags = self.train_flags
-        given = [f.split("=", 1)[1] for f in flags if f.startswith("--policy.selection_episodes=")]
-        if self.method in ("expert", "random", "bc") or given == ["0"]:
+        if self.method in ("expert", "random", "bc"):
             return False
-        return bool(given) or "--policy.exploration=false" not in flags
+        policy = dict(f.removeprefix("--policy.").split("=", 1) for f in self.train_flags if f.startswith("--policy."))
+        config = IUPEConfig(  # the config's own rule, from the settings it depends on
+            device="cpu",
+            exploration=policy.get("exploration", "true") == "true",
+            eval_mode=policy.get("eval_mode", "argmax"),
+            selection_episodes=int(policy["selection_episodes"]) if "selection_episodes" in policy else None,
+        )
+        return config.separate_selection_episodes > 0
 
     @property
     def cost(self) -> float:

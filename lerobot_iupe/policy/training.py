@@ -222,7 +222,7 @@ class IUPETrainer:
     def end_cycle(self) -> None:
         cfg, state = self.config, self.state
         state.cycle += 1
-        seed = 1_000_000 * (1 + state.rank) + self.seed * 100_003 + state.cycle * cfg.rollout_episodes
+        seed = self.episode_seeds + state.cycle * cfg.rollout_episodes
         start = time.perf_counter()
         rollouts = self.rollout(cfg.rollout_episodes, seed, explore=cfg.exploration)
         episodes, successes, returns, env_successes = rollouts
@@ -298,9 +298,15 @@ class IUPETrainer:
     def selection_rates(self, episodes: int) -> dict[str, float]:
         """The goal and env-success rates of ``episodes`` played as lerobot-eval plays (``eval_mode``), from the
         same start seeds every cycle (apart from the rollouts' and the benchmark's evaluation seeds)."""
-        seed = 1_000_000 * (1 + self.state.rank) + self.seed * 100_003 + 50_000
-        _, goals, _, env_successes = self.rollout(episodes, seed, explore=self.config.eval_mode == "sample")
+        sample = self.config.eval_mode == "sample"
+        _, goals, _, env_successes = self.rollout(episodes, self.episode_seeds + 50_000, explore=sample)
         return {"goal": float(goals.mean()), "env": float(env_successes.mean())}
+
+    @property
+    def episode_seeds(self) -> int:
+        """Where this run's env seeds start (≥ 1,000,000, one range per rank): the rollouts from here on, cycle
+        after cycle, and the selection episodes always at 50,000 past it."""
+        return 1_000_000 * (1 + self.state.rank) + self.seed * 100_003
 
     @torch.no_grad()
     def rollout(
