@@ -152,6 +152,7 @@ def cartpole_run(cartpole_expert, cartpole_random, shared_dir) -> Path:
             "--save_freq=200",
             "--log_freq=50",
             "--policy.cycle_steps=50",
+            "--policy.selection_episodes=8",
         ),
     )
 

@@ -117,7 +117,7 @@ def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpo
     assert all(c["sampled_set_size"] == pre_trained_on for c in iupe)  # |I^s| = |I_pre| less the held-out part
     assert all(c["idm_held_out"] >= pre_transitions // 10 for c in iupe)
     assert any(c["label_non_map"] > 0 for c in iupe)
-    assert all(c["selection_episodes"] == 20 for c in iupe) and iupe[-1]["selection_s"] > 0  # its own, by the mode
+    assert all(c["selection_episodes"] == 8 for c in iupe) and iupe[-1]["selection_s"] > 0  # its own, by the mode
     bco = tmp_path / "bco"
     switches = ["--policy.sampling=false", "--policy.exploration=false", "--policy.attention=false"]
     short = ["--steps=20", "--batch_size=64", "--policy.cycle_steps=10", "--policy.rollout_episodes=4"]

@@ -65,8 +65,8 @@ def read_training_run(checkpoint: Path, output: str, steps: int) -> tuple[list[d
     cycles = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     data_avg = [float(x) for x in DATA_S.findall(output)]  # LeRobot's own per-step data-loading average
     timing = {
-        "rollouts_s": cycles[-1]["rollouts_s"] if cycles else 0.0,
-        "idm_s": cycles[-1]["idm_s"] if cycles else 0.0,
+        "rollouts_s": cycles[-1].get("rollouts_s", 0.0) if cycles else 0.0,  # none in a supervised run
+        "idm_s": cycles[-1].get("idm_s", 0.0) if cycles else 0.0,
         "selection_s": cycles[-1].get("selection_s", 0.0) if cycles else 0.0,
         "data_loading_s": float(np.mean(data_avg)) * steps if data_avg else 0.0,
     }

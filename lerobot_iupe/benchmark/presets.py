@@ -163,9 +163,16 @@ PRESETS = {
 # carry the arm where the expert goes; an IDM reading the arm's state only (R² 0.957 on the expert against -0.32
 # reading the block it never saw carried); a policy reading 4 observations (the expert's gripper holds are a
 # hidden phase: BC 0.37 -> 0.65).
-SO101_POLICY = {"rollout_episodes": "10", "n_obs_steps": "4", "idm_observation_keys": "[observation.state]"}
-# LunarLander selects BCO(α) and IUPE alike on 20 episodes of their own per cycle played by the mode (fixed start
-# seeds): on 10, neighbouring cycles of one seed differed by 0.1-0.4 in success (benchmarks/findings.md).
+SO101_POLICY = {
+    "rollout_episodes": "10",
+    "selection_episodes": "10",
+    "n_obs_steps": "4",
+    "idm_observation_keys": "[observation.state]",
+}
+# LunarLander selects BC, BCO(α) and IUPE alike on 20 episodes of their own per cycle played by the mode (fixed
+# start seeds): on 10, neighbouring cycles of one seed differed by 0.1-0.4 in success (benchmarks/findings.md).
+# SO-101 on 10 (its episodes are slow to simulate); BC plays them every cycle_steps too, so that no method keeps
+# a checkpoint the others would have passed over (neighbouring SO-101 checkpoints differ by tens of points).
 LUNAR_POLICY = {"rollout_episodes": "10", "selection_episodes": "20"}
 CONTINUOUS = {
     "lunarlander": EnvPreset({"type": "lunarlander"}, DataSettings(20, 200), TrainBudget(3000, 64, 200, LUNAR_POLICY)),

@@ -138,12 +138,14 @@ class Run:
 
     @property
     def plays_selection_episodes(self) -> bool:
-        """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default)."""
-        if self.method in ("expert", "random", "bc"):
+        """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default; BC when
+        the preset gives selection episodes)."""
+        if self.method in ("expert", "random"):
             return False
         policy = dict(f.removeprefix("--policy.").split("=", 1) for f in self.train_flags if f.startswith("--policy."))
         config = IUPEConfig(  # the config's own rule, from the settings it depends on
             device="cpu",
+            supervised=policy.get("supervised", "false") == "true",
             exploration=policy.get("exploration", "true") == "true",
             eval_mode=policy.get("eval_mode", "argmax"),
             selection_episodes=int(policy["selection_episodes"]) if "selection_episodes" in policy else None,
@@ -409,7 +411,7 @@ class Benchmark:
 
 def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
     """How a run's checkpoint was chosen, in words (recorded with each of its rows)."""
-    if run.method == "bc" or not cycles:
+    if not cycles:
         return "the last step's weights (no selection)"
     config = json.loads((checkpoint / "config.json").read_text())
     episodes, layouts = config["rollout_episodes"], config.get("rollout_layouts", 0)
@@ -419,7 +421,8 @@ def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
         where = f"the last {layouts} demonstration layouts, which the demonstration-layout evaluation does not play"
     else:
         where = "the expert dataset's own (demonstration) layouts, which the evaluation also plays"
-    rule = "the env's success, then the goal reached at any step, " if "env_success_rate" in cycles[0] else ""
+    judged_by_env = "env_success_rate" in cycles[0] or "selection_env_success_rate" in cycles[0]
+    rule = "the env's success, then the goal reached at any step, " if judged_by_env else ""
     if cycles[0].get("selection_s") is not None and cycles[-1]["selection_s"] > 0:
         played = "a draw" if config.get("eval_mode") == "sample" else "the mode"
         return (

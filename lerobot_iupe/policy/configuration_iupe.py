@@ -88,6 +88,8 @@ class IUPEConfig(PreTrainedConfig):
     # own every cycle, from the same start seeds every cycle so that cycles are compared on one set. None: the
     # cycle's rollouts when they already play that way (no exploration), else as many episodes of their own as the
     # rollouts. 0: the rollouts themselves, also when they draw (the paper's rule; not what lerobot-eval plays).
+    # Supervised (BC): None or 0 keeps the last step's weights (no env needed); N > 0 plays N episodes every
+    # cycle_steps steps and keeps the best, as BCO(α) and IUPE do (it needs the env, as they do).
     selection_episodes: int | None = None
     # Mazes: the rollouts (whose success also selects the model) play only the expert dataset's last K layouts;
     # 0 = all of them. An evaluation on the other layouts then never plays a layout the selection saw.
@@ -181,7 +183,10 @@ class IUPEConfig(PreTrainedConfig):
 
     @property
     def separate_selection_episodes(self) -> int:
-        """Episodes played each cycle only to select the model; 0 = the selection reads the cycle's rollouts."""
+        """Episodes played each cycle only to select the model; 0 = the selection reads the cycle's rollouts (or,
+        supervised, that there is no selection)."""
+        if self.supervised:
+            return self.selection_episodes or 0
         if self.selection_episodes == 0 or (self.selection_episodes is None and self.rollouts_play_eval_mode):
             return 0
         return self.rollout_episodes if self.selection_episodes is None else self.selection_episodes
@@ -292,6 +297,12 @@ class IUPEConfig(PreTrainedConfig):
                 self.env_settings = env_settings(train_cfg.env)
             elif self.env_settings is None:
                 self.env_settings = read_iupe_meta(Path(dataset_meta.root)).get("env")
+            if self.supervised and self.separate_selection_episodes and self.env_settings is None:
+                raise ValueError(
+                    f"--policy.selection_episodes={self.selection_episodes} with --policy.supervised=true plays "
+                    f"episodes in the env to select the model, and the dataset at {dataset_meta.root} records no "
+                    "env (meta/iupe.json): pass --env.type=<its env>, or --policy.selection_episodes=0"
+                )
         if self.n_actions == 0 and not self.is_continuous:
             if self.env_settings is None and dataset_meta is not None and self.supervised:
                 self.action_space_from_dataset(dataset_meta)

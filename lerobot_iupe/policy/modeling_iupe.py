@@ -181,7 +181,7 @@ class IUPEPolicy(PreTrainedPolicy):
         return loss, {"pm_loss": float(loss.detach()), **self.trainer.stats}
 
     def update(self) -> None:
-        if self.config.supervised or self.trainer is None or self.trainer.state is None:
+        if self.trainer is None or (self.config.supervised and not self.config.separate_selection_episodes):
             return
         self.trainer.step_done()
 

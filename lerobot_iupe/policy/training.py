@@ -112,6 +112,12 @@ class IUPETrainer:
                 f"the pre-demonstrations {cfg.pre_demos_repo_id} have {kind[continuous_actions]} actions but env "
                 f"{self.env_cfg.type} has {kind[cfg.is_continuous]} ones"
             )
+        self.use_layouts()
+        return pre
+
+    def use_layouts(self) -> None:
+        """Mazes: the expert dataset's layouts that rollouts and selection episodes play (the last K of them)."""
+        cfg, meta = self.config, self.dataset_meta
         layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
         if cfg.rollout_layouts and cfg.rollout_layouts >= len(set(layouts)):
             raise ValueError(
@@ -120,7 +126,6 @@ class IUPETrainer:
                 + ("" if layouts else ": it records none (meta/iupe.json layout_ids; maze datasets only)")
             )
         self.layouts = list(dict.fromkeys(layouts))[-cfg.rollout_layouts :] if cfg.rollout_layouts else layouts
-        return pre
 
     def use_env(self, env_cfg) -> None:
         """Roll out in ``env_cfg`` (any LeRobot env type whose ``features_map`` gives the policy's observations)."""
@@ -162,14 +167,45 @@ class IUPETrainer:
             f"IUPE: {len(pre) + len(pre_held)} pre-demonstration transitions ({len(pre_held)} held out to score "
             f"the IDM), I^s size {size}, env {self.env_cfg.type}"
         )
-        saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path and self.resume else None
-        if saved is not None and saved.exists():
-            self.restore(torch.load(saved, map_location=self.device, weights_only=True))
-            log.info(f"IUPE: continuing from cycle {state.cycle} (step {state.step}) of {saved.parent}")
+        if self.resumed():
             return
         start = time.perf_counter()
         self.train_idm(pre, pre_held)
         state.idm_s += time.perf_counter() - start
+
+    def start_selection(self) -> None:
+        """A supervised run that selects (``--policy.selection_episodes=N``): its env and a state that counts the
+        steps and keeps the best model; no pre-demonstrations, no IDM cycle (LeRobot's optimizer trains both)."""
+        cfg, meta = self.config, self.dataset_meta
+        env_cfg = env_config_from_settings(cfg.env_settings)
+        for key in cfg.observation_keys:
+            check_compatible(env_spec(env_cfg, key), dataset_spec(meta, key, f"the dataset at {meta.root}"))
+        self.use_env(env_cfg)
+        self.use_layouts()
+        rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
+        self.state = TrainingState(
+            seed=self.seed,
+            rank=rank,
+            pre=None,
+            pre_held=None,
+            sampled_set_size=0,
+            rng=np.random.default_rng([self.seed, rank]),
+            torch_rng=torch.Generator(device="cpu").manual_seed((self.seed * 1000 + rank) % 2**63),
+            idm_optimizer=None,
+        )
+        if self.state.torch_rng.device != self.device:
+            self.state.torch_rng = None
+        self.resumed()
+
+    def resumed(self) -> bool:
+        """--resume=true: restore the saved state beside the checkpoint, if there is one."""
+        cfg, state = self.config, self.state
+        saved = Path(cfg.pretrained_path) / TRAINING_STATE_FILE if cfg.pretrained_path and self.resume else None
+        if saved is None or not saved.exists():
+            return False
+        self.restore(torch.load(saved, map_location=self.device, weights_only=True))
+        log.info(f"IUPE: continuing from cycle {state.cycle} (step {state.step}) of {saved.parent}")
+        return True
 
     def set_threads(self) -> None:
         threads = self.config.torch_threads or (0 if self.config.is_image else 1)
@@ -213,9 +249,11 @@ class IUPETrainer:
         return head.labels(output, drawn, self.config.exploration)
 
     def step_done(self) -> None:
+        if self.state is None:  # supervised: nothing has started it (the IUPE cycle starts in labels())
+            self.start_selection()
         self.state.step += 1
         if self.state.step % self.config.cycle_steps == 0:
-            self.end_cycle()
+            self.end_selection_cycle() if self.config.supervised else self.end_cycle()
 
     # ------------------------------------------------------------ 3. every cycle
 
@@ -233,10 +271,7 @@ class IUPETrainer:
             start = time.perf_counter()
             judged = self.selection_rates(cfg.separate_selection_episodes)
             state.selection_s += time.perf_counter() - start
-        selected = selects(judged["env"], judged["goal"], (state.best_env_success, state.best_success))
-        if selected:
-            state.best_env_success, state.best_success = judged["env"], judged["goal"]
-            self.selected_weights = copy.deepcopy(self.policy.state_dict())
+        selected = self.keep_if_best(judged)
         pre = state.pre
         good = [e for e, ok in zip(episodes, successes, strict=True) if ok]
         # The IDM is scored on transitions it is not trained on: a tenth of this cycle's rollout transitions that
@@ -294,6 +329,40 @@ class IUPETrainer:
             f"{state.best_success:.2f}{', selected' if selected else ''}) "
             f"time so far: rollouts {state.rollouts_s:.2f}s selection {state.selection_s:.2f}s IDM {state.idm_s:.2f}s"
         )
+
+    def end_selection_cycle(self) -> None:
+        """Supervised: play the selection episodes and keep the model if it is the best so far."""
+        state = self.state
+        state.cycle += 1
+        start = time.perf_counter()
+        judged = self.selection_rates(self.config.separate_selection_episodes)
+        state.selection_s += time.perf_counter() - start
+        selected = self.keep_if_best(judged)
+        state.cycles.append(
+            {
+                "cycle": state.cycle,
+                "step": state.step,
+                "selection_episodes": self.config.separate_selection_episodes,
+                "selection_env_success_rate": judged["env"],
+                "selection_goal_rate": judged["goal"],
+                "selected": selected,
+                "best_success": state.best_success,
+                "selection_s": state.selection_s,
+            }
+        )
+        log.info(
+            f"BC (supervised), step {state.step}: selection on {self.config.separate_selection_episodes} episodes: "
+            f"env's {judged['env']:.2f}, goal {judged['goal']:.2f}{', selected' if selected else ''}"
+        )
+
+    def keep_if_best(self, judged: dict[str, float]) -> bool:
+        """Select the current model if its rates beat the best so far (``algorithm.selects``); whether it did."""
+        state = self.state
+        selected = selects(judged["env"], judged["goal"], (state.best_env_success, state.best_success))
+        if selected:
+            state.best_env_success, state.best_success = judged["env"], judged["goal"]
+            self.selected_weights = copy.deepcopy(self.policy.state_dict())
+        return selected
 
     def selection_rates(self, episodes: int) -> dict[str, float]:
         """The goal and env-success rates of ``episodes`` played as lerobot-eval plays (``eval_mode``), from the

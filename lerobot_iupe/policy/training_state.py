@@ -21,12 +21,12 @@ class TrainingState:
 
     seed: int
     rank: int
-    pre: Transitions  # the IDM's part of I_pre (I^s is drawn from it)
-    pre_held: Transitions  # the rest: scores the IDM every cycle and is never trained on
+    pre: Transitions | None  # the IDM's part of I_pre (I^s is drawn from it); None: a supervised run
+    pre_held: Transitions | None  # the rest: scores the IDM every cycle and is never trained on
     sampled_set_size: int
     rng: np.random.Generator
     torch_rng: torch.Generator | None  # None where the policy runs on another device (then: the global one)
-    idm_optimizer: torch.optim.Optimizer
+    idm_optimizer: torch.optim.Optimizer | None  # None: supervised, LeRobot's optimizer trains the IDM
     step: int = 0
     cycle: int = 0
     best_success: float = -1.0  # the goal rate r of the selected cycle
@@ -45,7 +45,7 @@ class TrainingState:
             "seed": self.seed,
             "rng": self.rng.bit_generator.state,
             "torch_rng": None if self.torch_rng is None else self.torch_rng.get_state(),
-            "idm_optimizer": self.idm_optimizer.state_dict(),
+            "idm_optimizer": None if self.idm_optimizer is None else self.idm_optimizer.state_dict(),
             "latest_weights": latest_weights,
             "seconds": {"rollouts": self.rollouts_s, "idm": self.idm_s, "selection": self.selection_s},
             "cycles": self.cycles,
@@ -61,5 +61,6 @@ class TrainingState:
         self.rng.bit_generator.state = saved["rng"]
         if self.torch_rng is not None and saved["torch_rng"] is not None:
             self.torch_rng.set_state(saved["torch_rng"])
-        self.idm_optimizer.load_state_dict(saved["idm_optimizer"])
+        if self.idm_optimizer is not None:
+            self.idm_optimizer.load_state_dict(saved["idm_optimizer"])
         self.cycles = list(saved["cycles"])
