@@ -93,6 +93,13 @@ def cartpole_expert(data_dir) -> Path:
 
 
 @pytest.fixture(scope="session")
+def cartpole_labelled(data_dir) -> Path:
+    """Three CartPole expert episodes with their true actions (supervised training)."""
+    return collect(data_dir, "cartpole-expert-labelled", "--env.type=cartpole", "--agent=expert", "--episodes=3",
+                   "--keep_actions=true")  # fmt: skip
+
+
+@pytest.fixture(scope="session")
 def maze_random(data_dir) -> Path:
     return collect(
         data_dir,

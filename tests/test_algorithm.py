@@ -179,5 +179,9 @@ def test_the_model_is_selected_on_episodes_played_as_lerobot_eval_plays_them():
     assert IUPEConfig(exploration=False).separate_selection_episodes == 0
     assert IUPEConfig(eval_mode="sample").separate_selection_episodes == 0
     assert IUPEConfig(exploration=False, eval_mode="sample").separate_selection_episodes == 20
+    # supervised (BC): the last step unless told (it needs no env), else N episodes of its own
+    assert IUPEConfig(supervised=True).separate_selection_episodes == 0
+    assert IUPEConfig(supervised=True, selection_episodes=0).separate_selection_episodes == 0
+    assert IUPEConfig(supervised=True, selection_episodes=5).separate_selection_episodes == 5
     with pytest.raises(ValueError, match="--policy.selection_episodes"):
         IUPEConfig(selection_episodes=-1)

@@ -128,6 +128,11 @@ def test_records_are_keyed_by_everything_that_determines_them():
     assert not dataclasses.replace(run, method="bco").plays_selection_episodes  # its rollouts play the mode
     twenty = dataclasses.replace(preset, train=dataclasses.replace(preset.train, policy={"selection_episodes": "20"}))
     assert Run("table1", "cartpole", twenty, "bco", 0, {}, {}).plays_selection_episodes  # told to: its own
+    # BC keeps its last step (the committed rows) unless the preset gives selection episodes: then other rows
+    assert not dataclasses.replace(run, method="bc").plays_selection_episodes
+    bc_twenty = Run("table1", "cartpole", twenty, "bc", 0, {}, {})
+    assert bc_twenty.plays_selection_episodes
+    assert bc_twenty.config_key(100) != dataclasses.replace(bc_twenty, preset=preset).config_key(100)
     assert run.config_key(100) != dataclasses.replace(run, preset=paper).config_key(100)
     assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)
 

@@ -1,6 +1,7 @@
 """The IUPE cycle in process, on real datasets and real envs, stepped as lerobot-train steps it
 (forward → backward → clip → optimizer step → zero_grad → update)."""
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -185,6 +186,48 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     assert all(torch.equal(saved[k], v) for k, v in selected_pm.items())
     latest = torch.load(tmp_path / "ckpt" / TRAINING_STATE_FILE, weights_only=True)["latest_weights"]
     assert all(torch.equal(latest[k], v) for k, v in policy.state_dict().items())
+
+
+def test_a_supervised_run_with_selection_episodes_keeps_its_best_step(
+    cartpole_labelled, cartpole_random, monkeypatch, tmp_path
+):
+    """BC selects as BCO(α) and IUPE do: every cycle_steps steps it plays its selection episodes by the mode, from
+    the same seeds, and its checkpoint is the best step's weights, not the last one's; no IDM cycle runs."""
+    policy = build(cartpole_labelled, cartpole_random, supervised=True, selection_episodes=2)
+    assert policy.config.separate_selection_episodes == 2
+    rollouts = Spy(policy.trainer.rollout)
+    monkeypatch.setattr(policy.trainer, "rollout", rollouts)
+    monkeypatch.setattr(policy.trainer, "train_idm", Spy(policy.trainer.train_idm))
+    optimizer = train_steps(policy, cartpole_labelled, 4)  # two cycles, real episodes
+    assert [(c[0], c[1]["explore"]) for c in rollouts.calls] == [((2, rollouts.calls[0][0][1]), False)] * 2
+    for cycle, (_, _, (_, goals, _, env_successes)) in zip(policy.cycles, rollouts.calls, strict=True):
+        assert (cycle["selection_env_success_rate"], cycle["selection_goal_rate"]) == (
+            env_successes.mean(),
+            goals.mean(),
+        )
+    assert policy.trainer.state.pre is None and not policy.trainer.train_idm.calls  # no pre-demos, no IDM cycle
+    # a scripted outcome for the next cycles: the best is the middle one
+    rates = iter([{"env": 2.0, "goal": 2.0}, {"env": 0.0, "goal": 0.0}])
+    monkeypatch.setattr(policy.trainer, "selection_rates", lambda episodes: next(rates))
+    optimizer = train_steps(policy, cartpole_labelled, 2, optimizer)
+    best = {k: v.clone() for k, v in policy.state_dict().items()}
+    train_steps(policy, cartpole_labelled, 2, optimizer)
+    assert [c["selected"] for c in policy.cycles[2:]] == [True, False]
+    policy.save_pretrained(tmp_path / "ckpt")
+    saved = load_file(tmp_path / "ckpt" / "model.safetensors")
+    assert all(torch.equal(saved[k], v) for k, v in best.items())
+    assert any(not torch.equal(best[k], v) for k, v in policy.state_dict().items())  # the last step differs
+
+
+def test_a_supervised_run_cannot_select_without_an_env(cartpole_labelled, cartpole_random, tmp_path):
+    copy = tmp_path / "no-env"
+    shutil.copytree(cartpole_labelled, copy)
+    (copy / "meta" / "iupe.json").unlink()
+    files = {p: p.stat().st_mtime_ns for p in copy.rglob("*")}
+    with pytest.raises(ValueError, match=r"--policy.selection_episodes=2 .* pass --env.type=<its env>"):
+        build(copy, cartpole_random, supervised=True, selection_episodes=2)
+    assert build(copy, cartpole_random, supervised=True).config.separate_selection_episodes == 0  # BC needs no env
+    assert {p: p.stat().st_mtime_ns for p in copy.rglob("*")} == files  # the dataset is left as it was
 
 
 def test_rollouts_play_only_the_last_rollout_layouts_of_the_expert_dataset(maze_expert, maze_random, monkeypatch):

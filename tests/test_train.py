@@ -132,12 +132,10 @@ def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpo
     assert not [k for k in load_file(bco / CHECKPOINT / "model.safetensors") if "gamma" in k]
 
 
-def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(cartpole_random, data_dir, tmp_path):
-    labelled = data_dir / "cartpole-expert-labelled"
-    run_cli(
-        "lerobot-iupe-collect", "--env.type=cartpole", "--agent=expert", "--episodes=3", "--keep_actions=true",
-        "--dataset.repo_id=local/labelled", f"--dataset.root={labelled}",
-    )  # fmt: skip
+def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(
+    cartpole_labelled, cartpole_random, tmp_path
+):
+    labelled = cartpole_labelled
     bc = tmp_path / "bc"
     run_cli(
         "lerobot-train",
