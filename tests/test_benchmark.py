@@ -10,7 +10,7 @@ import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
 
 from lerobot_iupe.benchmark import PRESETS, Run, method_flags, read_training_run
-from lerobot_iupe.benchmark.report import _cell
+from lerobot_iupe.benchmark.report import _cell, plot_results
 
 LAYOUTS = ("demo", "heldout")
 
@@ -179,3 +179,16 @@ def test_mode_script_names_a_data_folder_that_is_not_a_dataset(tmp_path):
     result = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
     assert result.returncode == 2
     assert f"--data={tmp_path} is not a LeRobot dataset (no meta/info.json)" in result.stderr
+
+
+def test_the_cycle_plot_draws_rollout_curves_and_skips_a_selecting_bc_run(tmp_path):
+    """A BC run that selects records cycles without rollouts; the plot must not read rollout rates from them."""
+    selecting = {"cycle": 1, "step": 200, "selection_episodes": 10, "selection_env_success_rate": 0.5}
+    rollouts = {"cycle": 1, "step": 200, "success_rate": 0.5, "return": 10.0}
+    rows = [
+        {"table": "continuous", "env": "lunarlander", "method": method, "seed": 0, "eval_layouts": None,
+         "eval_mode": "argmax", "P": 0.9, "cycles": [cycle, {**cycle, "cycle": 2}]}
+        for method, cycle in (("bc", selecting), ("iupe", rollouts))
+    ]  # fmt: skip
+    assert plot_results(rows, tmp_path) == [tmp_path / "cycles.png"]
+    assert matplotlib.image.imread(tmp_path / "cycles.png").shape[0] > 0

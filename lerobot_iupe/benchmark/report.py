@@ -252,7 +252,8 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     paths = []
-    curves = _first_rows([r for r in records if r["cycles"]])
+    # rollout curves: a supervised run's cycles record its selection episodes only (it plays no rollouts)
+    curves = _first_rows([r for r in records if r["cycles"] and "success_rate" in r["cycles"][0]])
     groups = sorted({(r["table"], r["env"]) for r in curves}, key=str)
     if groups:
         fig, axes = plt.subplots(2, len(groups), figsize=(4 * len(groups), 6), squeeze=False)
