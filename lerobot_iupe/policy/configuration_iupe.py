@@ -89,7 +89,8 @@ class IUPEConfig(PreTrainedConfig):
     # cycle's rollouts when they already play that way (no exploration), else as many episodes of their own as the
     # rollouts. 0: the rollouts themselves, also when they draw (the paper's rule; not what lerobot-eval plays).
     # Supervised (BC): None or 0 keeps the last step's weights (no env needed); N > 0 plays N episodes every
-    # cycle_steps steps and keeps the best, as BCO(α) and IUPE do (it needs the env, as they do).
+    # cycle_steps steps and keeps the best policy model, as BCO(α) and IUPE do (it needs the env, as they do); its
+    # IDM, which relabelling reads, stays the latest.
     selection_episodes: int | None = None
     # Mazes: the rollouts (whose success also selects the model) play only the expert dataset's last K layouts;
     # 0 = all of them. An evaluation on the other layouts then never plays a layout the selection saw.

@@ -190,6 +190,8 @@ class IUPEPolicy(PreTrainedPolicy):
         algorithm's state and its cycle records."""
         if state_dict is None and self.trainer is not None and self.trainer.selected_weights is not None:
             state_dict = self.trainer.selected_weights
+            if self.config.supervised:  # the policy model is selected; the IDM, learning the true actions, is kept
+                state_dict = {**state_dict, **{k: v for k, v in self.state_dict().items() if k.startswith("idm_")}}
         super()._save_pretrained(save_directory, state_dict)
         if self.trainer is not None:
             self.trainer.save(Path(save_directory))
