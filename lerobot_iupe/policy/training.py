@@ -150,19 +150,8 @@ class IUPETrainer:
         train_part, held_part = held_out_split(len(pre), np.random.default_rng([self.seed, rank, 1]))
         pre, pre_held = pre.take(train_part), pre.take(held_part)
         size = cfg.sampled_set_size or len(pre)
-        idm = self.policy.idm_parameters()
-        self.state = state = TrainingState(
-            seed=self.seed,
-            rank=rank,
-            pre=pre,
-            pre_held=pre_held,
-            sampled_set_size=size,
-            rng=np.random.default_rng([self.seed, rank]),
-            torch_rng=torch.Generator(device="cpu").manual_seed((self.seed * 1000 + rank) % 2**63),
-            idm_optimizer=torch.optim.Adam(idm, lr=cfg.idm_lr),
-        )
-        if state.torch_rng.device != self.device:
-            state.torch_rng = None
+        idm_optimizer = torch.optim.Adam(self.policy.idm_parameters(), lr=cfg.idm_lr)
+        self.state = state = self.new_state(rank, pre, pre_held, size, idm_optimizer)
         log.info(
             f"IUPE: {len(pre) + len(pre_held)} pre-demonstration transitions ({len(pre_held)} held out to score "
             f"the IDM), I^s size {size}, env {self.env_cfg.type}"
@@ -183,19 +172,24 @@ class IUPETrainer:
         self.use_env(env_cfg)
         self.use_layouts()
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
-        self.state = TrainingState(
+        self.state = self.new_state(rank, None, None, 0, None)
+        self.resumed()
+
+    def new_state(self, rank: int, pre, pre_held, size: int, idm_optimizer) -> TrainingState:
+        """A fresh training state: this run's random streams (the torch one only where the policy runs on CPU)."""
+        state = TrainingState(
             seed=self.seed,
             rank=rank,
-            pre=None,
-            pre_held=None,
-            sampled_set_size=0,
+            pre=pre,
+            pre_held=pre_held,
+            sampled_set_size=size,
             rng=np.random.default_rng([self.seed, rank]),
             torch_rng=torch.Generator(device="cpu").manual_seed((self.seed * 1000 + rank) % 2**63),
-            idm_optimizer=None,
+            idm_optimizer=idm_optimizer,
         )
-        if self.state.torch_rng.device != self.device:
-            self.state.torch_rng = None
-        self.resumed()
+        if state.torch_rng.device != self.device:
+            state.torch_rng = None
+        return state
 
     def resumed(self) -> bool:
         """--resume=true: restore the saved state beside the checkpoint, if there is one."""
