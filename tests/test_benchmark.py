@@ -59,14 +59,17 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     for plot in ("cycles.png", "performance.png"):  # real figures: decodable PNGs with something drawn on them
         pixels = matplotlib.image.imread(out / plot)
         assert pixels.ndim == 3 and min(pixels.shape[:2]) >= 200 and pixels[..., :3].std() > 0.02
+    # the later calls train nothing, so they run in this process (the first one ran as the installed command)
     # a second call resumes: every run is already recorded, nothing is trained again
-    again = run_cli("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'work'}", f"--out={out}")
-    assert "lerobot-train" not in again.stdout
+    again = run_in_process("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'work'}", f"--out={out}")
+    assert again.returncode == 0 and "lerobot-train" not in again.stdout, again.stderr[-3000:]
     assert (out / "results.md").read_text().count("- `lerobot-iupe-benchmark --quick") == 2  # both calls listed
     # a fresh work folder seeded from the report (a fresh clone): nothing is trained, every record is kept
     published = json.loads((out / "results.json").read_text())
-    fresh = run_cli("lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'fresh'}", f"--out={out}", f"--from={out}")
-    assert "lerobot-train" not in fresh.stdout and f"{len(published)} records added" in fresh.stdout
+    fresh_work = f"--work={tmp_path / 'fresh'}"
+    fresh = run_in_process("lerobot-iupe-benchmark", *args, fresh_work, f"--out={out}", f"--from={out}")
+    assert fresh.returncode == 0 and "lerobot-train" not in fresh.stdout
+    assert f"{len(published)} records added" in fresh.stdout
     assert json.loads((out / "results.json").read_text()) == published
     assert len(json.loads((out / "calls.json").read_text())) == 3
     # a report scored against other references is scored again against the scored episodes' own
@@ -74,10 +77,10 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     stale.mkdir()
     old = [dict(r, R_random=r["R_random"] - 7.0, P=0.5) if r["env"] == "cartpole" else r for r in published]
     (stale / "results.json").write_text(json.dumps(old))
-    rescored = run_cli(
+    rescored = run_in_process(
         "lerobot-iupe-benchmark", *args, f"--work={tmp_path / 'rescored'}", f"--out={stale}", f"--from={stale}"
     )
-    assert "lerobot-train" not in rescored.stdout
+    assert rescored.returncode == 0 and "lerobot-train" not in rescored.stdout
     assert json.loads((stale / "results.json").read_text()) == published
     # a report that still holds a row of an older configuration of a recorded run: the run's own row stays alone
     older = tmp_path / "older"
@@ -85,8 +88,8 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     (row,) = [r for r in published if (r["env"], r["method"], r["eval_mode"]) == ("cartpole", "iupe", "argmax")]
     (older / "results.json").write_text(json.dumps([*published, dict(row, config="0ld0ld0ld0", P=-9.0)]))
     work = f"--work={tmp_path / 'work'}"
-    merged = run_cli("lerobot-iupe-benchmark", *args, work, f"--out={older}", f"--from={older}")
-    assert "lerobot-train" not in merged.stdout and "1 records added" in merged.stdout
+    merged = run_in_process("lerobot-iupe-benchmark", *args, work, f"--out={older}", f"--from={older}")
+    assert merged.returncode == 0 and "lerobot-train" not in merged.stdout and "1 records added" in merged.stdout
     assert json.loads((older / "results.json").read_text()) == published
 
 

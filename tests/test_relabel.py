@@ -11,12 +11,13 @@ import time
 
 import numpy as np
 import pytest
-from conftest import BIN, CHECKPOINT, collect, evaluate, run_cli, run_in_process, train_args
+from conftest import BIN, CHECKPOINT, collect, run_cli, run_in_process, train_args
 from hub_server import LocalHub
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
 from test_hub import hub_env
 
+from lerobot_iupe.benchmark import evaluate_checkpoint
 from lerobot_iupe.collect import dataset_features
 from lerobot_iupe.data.readers import stored_frames
 from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
@@ -89,7 +90,7 @@ def test_bc_on_a_relabelled_cartpole_dataset_reaches_475(cartpole_run, cartpole_
         "lerobot-train",
         *train_args(stripped, cartpole_random, out, "--steps=300", "--batch_size=128", "--policy.supervised=true"),
     )
-    result = evaluate(out / CHECKPOINT, tmp_path / "eval", "--env.type=cartpole", episodes=20)
+    result = evaluate_checkpoint(out / CHECKPOINT, CartPoleEnvConfig(), episodes=20)  # lerobot-eval's path, no videos
     assert result["avg_sum_reward"] >= 475
 
 

@@ -14,7 +14,7 @@ from test_loop import build, frame_batch
 
 from lerobot_iupe.benchmark import evaluate_checkpoint
 from lerobot_iupe.data.readers import column_array
-from lerobot_iupe.envs.configs import MazeEnvConfig
+from lerobot_iupe.envs.configs import CartPoleEnvConfig, MazeEnvConfig
 from lerobot_iupe.policy import IUPEPolicy
 from lerobot_iupe.policy.training import CYCLES_FILE
 
@@ -22,8 +22,9 @@ from lerobot_iupe.policy.training import CYCLES_FILE
 def test_iupe_learns_cartpole_from_state_only_demos(cartpole_run, tmp_path):
     checkpoint = cartpole_run / CHECKPOINT
     assert (checkpoint / "model.safetensors").exists() and (checkpoint / "config.json").exists()
-    # 20 evaluation episodes on seeds 500000… never used in training (data 0…9 and 1000…1399, rollouts ≥ 1e6)
-    result = evaluate(checkpoint, tmp_path / "eval", "--env.type=cartpole", episodes=20)
+    # 20 evaluation episodes on seeds 500000… never used in training (data 0…9 and 1000…1399, rollouts ≥ 1e6), by
+    # lerobot-eval's path without its videos (the CLI itself runs on the maze checkpoint below)
+    result = evaluate_checkpoint(checkpoint, CartPoleEnvConfig(), episodes=20)
     assert result["avg_sum_reward"] >= 475
     assert result["pc_success"] >= 95
 
