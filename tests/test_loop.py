@@ -93,9 +93,14 @@ def test_building_a_policy_leaves_the_process_thread_count_alone(cartpole_run, c
     threads = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
-        IUPEPolicy.from_pretrained(cartpole_run / CHECKPOINT)  # as lerobot-eval and relabelling do
+        loaded = IUPEPolicy.from_pretrained(cartpole_run / CHECKPOINT)  # as lerobot-eval and relabelling do
         policy = build(cartpole_expert, cartpole_random)
         assert torch.get_num_threads() == 2
+        # lerobot-eval's select_action: the vector policy acts on 1 thread and gives the caller its 2 back
+        acting = []
+        loaded.pm_encoder.register_forward_pre_hook(lambda *_: acting.append(torch.get_num_threads()))
+        loaded.eval().select_action({"observation.state": torch.zeros(3, 4)})
+        assert acting == [1] and torch.get_num_threads() == 2
         policy.forward(frame_batch(cartpole_expert, 16))  # training starts: vector policies train on 1 thread
         assert torch.get_num_threads() == 1
     finally:

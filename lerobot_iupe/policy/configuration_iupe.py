@@ -109,8 +109,9 @@ class IUPEConfig(PreTrainedConfig):
     # Image encoder: "cnn" (compact residual CNN, CPU-sized at 64 px) or "resnet18" (torchvision, for GPU runs).
     image_backbone: str = "cnn"
     # CPU threads for torch while training (set when training starts, not when a policy is built, so evaluation
-    # and relabelling in the same process keep theirs); 0 = 1 thread for vector states (tiny networks run several
-    # times faster without intra-op threading) and torch's default for images.
+    # and relabelling in the same process keep theirs) and while the policy acts (then the caller's count is
+    # restored); 0 = 1 thread for vector states (tiny networks run several times faster without intra-op
+    # threading, and far faster beside LeRobot's env workers) and torch's default for images.
     torch_threads: int = 0
     optimizer_lr: float = 1e-3
     # Seed of IUPE's own random streams (rollout seeds, I^s draws, label draws); None = lerobot-train's --seed.
@@ -181,6 +182,11 @@ class IUPEConfig(PreTrainedConfig):
     def rollouts_play_eval_mode(self) -> bool:
         """Whether the cycle's rollouts act as lerobot-eval does (draws exactly when eval_mode is "sample")."""
         return self.exploration == (self.eval_mode == "sample")
+
+    @property
+    def threads(self) -> int:
+        """The torch thread count this policy trains and acts with; 0 = torch's own (``torch_threads``)."""
+        return self.torch_threads or (0 if self.is_image else 1)
 
     @property
     def separate_selection_episodes(self) -> int:

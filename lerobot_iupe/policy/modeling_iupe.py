@@ -10,6 +10,8 @@ from its weights (``train_run``).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +22,19 @@ from torch import Tensor, nn
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 from lerobot_iupe.policy.networks import FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
 from lerobot_iupe.policy.training import IUPETrainer
+
+
+@contextmanager
+def acting_threads(threads: int) -> Iterator[None]:
+    """Run the block on ``threads`` torch threads (0: as they are) and give the caller back its own count."""
+    before = torch.get_num_threads()
+    if threads and threads != before:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != before:
+            torch.set_num_threads(before)
 
 
 class IUPEPolicy(PreTrainedPolicy):
@@ -155,9 +170,10 @@ class IUPEPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """The policy model's action as LeRobot's env loop wants it, (B, action_dim): the mode, or a draw with
         ``eval_mode="sample"`` (whatever the training switches). Training rollouts draw on their own."""
-        self._history = self.push_history(self._history, self.observation(batch))
-        output = self.pm_history_output(self._history)
-        return self.pm_head.as_float_action(self.pm_head.choose(output, self.config.eval_mode == "sample"))
+        with acting_threads(self.config.threads):
+            self._history = self.push_history(self._history, self.observation(batch))
+            output = self.pm_history_output(self._history)
+            return self.pm_head.as_float_action(self.pm_head.choose(output, self.config.eval_mode == "sample"))
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
         """One PM step on the batch's frames: s_t and s_{t+1} come from the in-memory expert data by the batch's

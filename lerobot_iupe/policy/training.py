@@ -202,9 +202,8 @@ class IUPETrainer:
         return True
 
     def set_threads(self) -> None:
-        threads = self.config.torch_threads or (0 if self.config.is_image else 1)
-        if threads:
-            torch.set_num_threads(threads)
+        if self.config.threads:
+            torch.set_num_threads(self.config.threads)
 
     def restore(self, saved: dict) -> None:
         """Go on where the saved run stopped: the loaded weights are its selected model; the current model becomes
