@@ -9,7 +9,7 @@ from pathlib import Path
 import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
 
-from lerobot_iupe.benchmark import PRESETS, Run, method_flags, read_training_run
+from lerobot_iupe.benchmark import CONTINUOUS, PRESETS, Run, method_flags, read_training_run
 from lerobot_iupe.benchmark.report import _cell, plot_results
 
 LAYOUTS = ("demo", "heldout")
@@ -138,6 +138,13 @@ def test_records_are_keyed_by_everything_that_determines_them():
     assert bc_twenty.config_key(100) != dataclasses.replace(bc_twenty, preset=preset).config_key(100)
     assert run.config_key(100) != dataclasses.replace(run, preset=paper).config_key(100)
     assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)
+    # SO-101 from uniformly random pre-demonstrations: the play column's env and budget, other data, and only the
+    # learners that read pre-demonstrations
+    uniform, play = CONTINUOUS["so101_uniform"], CONTINUOUS["so101_pickplace"]
+    assert (uniform.env, uniform.train) == (play.env, play.train) and uniform.data.pre_demos_agent == "random"
+    assert uniform.data_key(quick=False) != play.data_key(quick=False)
+    everything = ["expert", "random", "bc", "bco", "iupe"]
+    assert uniform.compared(everything) == ["bco", "iupe"] and play.compared(everything) == everything
 
 
 def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):

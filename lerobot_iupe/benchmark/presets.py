@@ -81,6 +81,11 @@ class EnvPreset:
     eval_modes: tuple[str, ...] = ("argmax", "sample")
     """Every checkpoint is evaluated under both rules of ``--policy.eval_mode``: the most likely action (the
     categorical argmax, the Gaussian's mode: what ``lerobot-eval`` plays by default) and a draw."""
+    methods: tuple[str, ...] | None = None
+    """The methods this preset's column compares (None: every method asked for)."""
+
+    def compared(self, methods: list[str]) -> list[str]:
+        return [m for m in methods if self.methods is None or m in self.methods]
 
     @property
     def is_maze(self) -> bool:
@@ -182,6 +187,14 @@ CONTINUOUS = {
         {"type": "so101_pickplace"},
         DataSettings(50, 100, pre_demos_agent="play"),
         TrainBudget(3000, 64, 200, SO101_POLICY),
+    ),
+    # The same task, data and budget from uniformly random pre-demonstrations: what the learners from state-only
+    # data make of them (BC, the expert and random rows do not depend on the pre-demonstrations).
+    "so101_uniform": EnvPreset(
+        {"type": "so101_pickplace"},
+        DataSettings(50, 100),
+        TrainBudget(3000, 64, 200, SO101_POLICY),
+        methods=("bco", "iupe"),
     ),
 }
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.

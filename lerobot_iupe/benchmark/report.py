@@ -23,7 +23,8 @@ from lerobot_iupe.benchmark.presets import (
 METHOD_NAMES = {"expert": "Expert", "random": "Random", "bc": "BC", "bco": "BCO(α)", "iupe": "IUPE"}
 ENV_NAMES = {"cartpole": "CartPole", "acrobot": "Acrobot", "mountaincar": "MountainCar", "maze3": "Maze 3×3",
              "maze5": "Maze 5×5", "maze10": "Maze 10×10", "lunarlander": "LunarLander",
-             "so101_pickplace": "SO-101 pick-and-place"}  # fmt: skip
+             "so101_pickplace": "SO-101 pick-and-place",
+             "so101_uniform": "SO-101, uniformly random pre-demos"}  # fmt: skip
 
 
 MAZE_SELECTION_NOTE = (

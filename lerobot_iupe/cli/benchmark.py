@@ -46,7 +46,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
         "--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata", "continuous"],
-        help="continuous: LunarLander and SO-101 (all Table 1 methods) and LunarLander's low-data row",
+        help="continuous: LunarLander and SO-101 (all Table 1 methods; SO-101 from uniformly random "
+        "pre-demonstrations, so101_uniform: BCO(α) and IUPE) and LunarLander's low-data row",
     )  # fmt: skip
     parser.add_argument(
         "--envs", nargs="+", default=[*PRESETS, *CONTINUOUS], choices=[*PRESETS, *CONTINUOUS],
@@ -95,7 +96,8 @@ def main() -> None:
         if "continuous" in args.tables:
             for env, preset in CONTINUOUS.items():
                 if env in args.envs:
-                    requests.append(dict(table="continuous", name=env, preset=preset, methods=args.methods))
+                    methods = preset.compared(args.methods)
+                    requests.append(dict(table="continuous", name=env, preset=preset, methods=methods))
             for env in (e for e in LOW_DATA if e in CONTINUOUS and e in args.envs):
                 methods = [m for m in LOW_DATA_CONTINUOUS_METHODS if m in args.methods]
                 low = dict(table="lowdata", name=env, preset=LOW_DATA[env], methods=methods)
