@@ -34,7 +34,7 @@ def run_cli(name: str, *args: str, env: dict | None = None, check: bool = True) 
     return result
 
 
-def run_in_process(name: str, *args: str) -> subprocess.CompletedProcess:
+def run_in_process(name: str, *args: str, check: bool = False) -> subprocess.CompletedProcess:
     """One of the package's commands (lerobot-iupe-*) run in this process: its installed console-script function
     with these arguments, its exit code and output. For refusals and fixture data, where a new process would spend
     ~5 s importing torch and LeRobot; the commands themselves run as processes elsewhere in the suite."""
@@ -51,6 +51,8 @@ def run_in_process(name: str, *args: str) -> subprocess.CompletedProcess:
     finally:
         sys.argv = argv
         torch.set_num_threads(threads)  # lerobot-iupe-relabel sets its own
+    if check and code != 0:
+        raise AssertionError(f"{name} failed ({code}):\n{out.getvalue()[-3000:]}\n{err.getvalue()[-5000:]}")
     return subprocess.CompletedProcess([name, *args], code, out.getvalue(), err.getvalue())
 
 
@@ -82,13 +84,8 @@ def collect(data_dir: Path, name: str, *args: str) -> Path:
     """Fixture data recorded by lerobot-iupe-collect in this process (test_collect runs it as a process)."""
     root = data_dir / name
 
-    def record() -> None:
-        flags = [f"--dataset.repo_id=local/{name}", f"--dataset.root={root}", *args]
-        result = run_in_process("lerobot-iupe-collect", *flags)
-        if result.returncode != 0:
-            raise AssertionError(f"lerobot-iupe-collect failed ({result.returncode}):\n{result.stderr[-5000:]}")
-
-    return once(root, record)
+    flags = [f"--dataset.repo_id=local/{name}", f"--dataset.root={root}", *args]
+    return once(root, lambda: run_in_process("lerobot-iupe-collect", *flags, check=True))
 
 
 def train_once(out: Path, *args: str) -> Path:

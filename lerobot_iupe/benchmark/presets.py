@@ -198,15 +198,18 @@ CONTINUOUS = {
     ),
 }
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.
+LOW_DATA_CONTINUOUS_METHODS = ["bco", "iupe"]
 LOW_DATA = {
     "cartpole": EnvPreset({"type": "cartpole"}, DataSettings(1, 45), TrainBudget(200, 64, 25)),
     "acrobot": EnvPreset({"type": "acrobot"}, DataSettings(1, 2), TrainBudget(200, 64, 25)),
     "mountaincar": EnvPreset({"type": "mountaincar"}, DataSettings(1, 5), TrainBudget(400, 64, 50)),
     "lunarlander": EnvPreset(
-        {"type": "lunarlander"}, DataSettings(1, 10), TrainBudget(1000, 64, 100, {"rollout_episodes": "10"})
+        {"type": "lunarlander"},
+        DataSettings(1, 10),
+        TrainBudget(1000, 64, 100, {"rollout_episodes": "10"}),
+        methods=tuple(LOW_DATA_CONTINUOUS_METHODS),
     ),
 }
-LOW_DATA_CONTINUOUS_METHODS = ["bco", "iupe"]
 QUICK_BUDGET = TrainBudget(20, 32, 10, {"rollout_episodes": "4"})
 
 

@@ -24,7 +24,6 @@ from lerobot_iupe.benchmark import (
     ABLATION,
     CONTINUOUS,
     LOW_DATA,
-    LOW_DATA_CONTINUOUS_METHODS,
     LOW_DATA_METHODS,
     PRESETS,
     TABLE1_METHODS,
@@ -99,9 +98,8 @@ def main() -> None:
                     methods = preset.compared(args.methods)
                     requests.append(dict(table="continuous", name=env, preset=preset, methods=methods))
             for env in (e for e in LOW_DATA if e in CONTINUOUS and e in args.envs):
-                methods = [m for m in LOW_DATA_CONTINUOUS_METHODS if m in args.methods]
-                low = dict(table="lowdata", name=env, preset=LOW_DATA[env], methods=methods)
-                requests.append(low)
+                preset = LOW_DATA[env]
+                requests.append(dict(table="lowdata", name=env, preset=preset, methods=preset.compared(args.methods)))
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))
