@@ -23,8 +23,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import delete_episodes, remove_feature
+from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
 from lerobot_iupe.data.readers import action_array, column_array
@@ -59,6 +61,13 @@ ACT_SETTINGS = {
     "chunk10": ["--policy.n_action_steps=10"],
     "replan": ["--policy.n_action_steps=1"],
     "ensemble": ["--policy.n_action_steps=1", "--policy.temporal_ensemble_coeff=0.01"],
+    # chunk10 fitted harder: a scripted expert has one action per state, so no VAE, no dropout, learning rate 1e-3
+    "fit": [
+        "--policy.n_action_steps=10",
+        "--policy.use_vae=false",
+        "--policy.dropout=0.0",
+        "--policy.optimizer_lr=1e-3",
+    ],
 }
 DEFAULT_ACT = "chunk10"
 COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]
@@ -72,6 +81,30 @@ def train(dataset: Path, out: Path, steps: int, seed: int, flags: list[str]) -> 
             f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}", f"--seed={seed}", threads=1,
         )  # fmt: skip
     return out / CHECKPOINT
+
+
+def training_fit(checkpoint: Path, dataset: Path, every: int = 3) -> list[float]:
+    """R² per action dimension of the policy's first action on its own training frames (every ``every``-th), read
+    through LeRobot's dataset and processors: whether the policy fits the data it was given, apart from how it
+    plays."""
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path, policy_cfg.device = checkpoint, "cpu"
+    frames = LeRobotDataset(f"local/{dataset.name}", root=dataset, video_backend="pyav")
+    policy = make_policy(cfg=policy_cfg, ds_meta=frames.meta).eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy_cfg=policy_cfg, pretrained_path=str(checkpoint),
+        preprocessor_overrides={"device_processor": {"device": "cpu"}},
+    )  # fmt: skip
+    predicted, true = [], []
+    for index in range(0, len(frames), every):
+        item = frames[index]
+        batch = {key: value.unsqueeze(0) for key, value in item.items() if key.startswith("observation.")}
+        policy.reset()  # a fresh chunk: its first action is the one predicted for this frame
+        with torch.no_grad():
+            predicted.append(postprocessor(policy.select_action(preprocessor({**batch, "task": [""]})))[0].numpy())
+        true.append(item["action"].numpy())
+    predicted, true = np.array(predicted), np.array(true)
+    return [r_squared(predicted[:, i], true[:, i]) for i in range(true.shape[1])]
 
 
 def lunar_effect(actions: np.ndarray) -> np.ndarray:
@@ -172,14 +205,16 @@ def measure(
         trained = list(pool.map(train_arm, runs))
     torch.set_num_threads(1)
     rows = []
-    for (labels, _, seed), (checkpoint, train_s) in zip(runs, trained, strict=True):
+    for (labels, dataset, seed), (checkpoint, train_s) in zip(runs, trained, strict=True):
         result = evaluate_checkpoint(checkpoint, env_cfg, episodes_eval)
+        fit = training_fit(checkpoint, dataset)
         rows.append(
             {
                 "env": env, "policy": "act", "labels": labels, "idm_context": k if labels == "idm" else None,
                 "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
                 "episodes": episodes_eval, "act": act, "act_steps": act_steps, "train_s": train_s,
+                "training_fit_r2_per_dim": fit,
             }
         )  # fmt: skip
         print(json.dumps(rows[-1]), flush=True)
