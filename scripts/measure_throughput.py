@@ -1,9 +1,11 @@
 """Relabelling throughput on one process and on two (`torchrun --nproc_per_node=2`), against the plain decode rate
-of the same video: a CartPole state dataset (100 expert episodes) and a Maze 5×5 64×64 AV1 video dataset (200
-random episodes). The IDMs are `--policy.supervised=true` checkpoints of the package's default sizes (a few
-steps: speed does not depend on the weights). Dry runs (labelling, gathering, no writing), PyAV decoding.
+of the same video: a CartPole state dataset (100 expert episodes), a Maze 5×5 64×64 AV1 video dataset (200
+random episodes) and the SO-101 arm seen by its front camera (64 px AV1 video) with its state (100 expert
+episodes; the IDM reads both, fused). The IDMs are `--policy.supervised=true` checkpoints of the package's default
+sizes (a few steps: speed does not depend on the weights). Dry runs (labelling, gathering, no writing), PyAV
+decoding.
 
-    python scripts/measure_throughput.py
+    python scripts/measure_throughput.py [--datasets cartpole maze5 so101_camera]
 
 Writes the "throughput" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
 """
@@ -55,54 +57,59 @@ def relabel_rate(checkpoint: Path, root: Path, processes: int, batch_size: int) 
 
 
 def decode_rate(root: Path, batch_size: int) -> float:
+    """Frames/s of decoding the dataset's camera alone, in the chunks the relabeller reads."""
     meta = LeRobotDatasetMetadata("local/d", root=root)
+    (camera,) = meta.video_keys
     start = time.perf_counter()
-    frames = sum(
-        len(c.frames) - 1 + c.ends_episode for c in video_chunks(meta, "observation.image", batch_size, "pyav")
-    )
+    frames = sum(len(c.frames) - 1 + c.ends_episode for c in video_chunks(meta, camera, batch_size, "pyav"))
     return frames / (time.perf_counter() - start)
+
+
+# name -> (work folder, dataset label, lerobot-iupe-collect flags); video datasets are also decoded alone
+DATASETS = {
+    "cartpole": (
+        "cartpole-100", "CartPole state",
+        ["--env.type=cartpole", "--agent=expert", "--episodes=100", "--seed=710000", "--keep_actions=true"],
+    ),
+    "maze5": (
+        "maze5-video-200", "Maze 5×5 64×64 AV1 video (pyav)",
+        ["--env.type=maze", "--env.size=5", "--agent=random", "--random_start=true", "--episodes=200", "--seed=720000"],
+    ),
+    "so101_camera": (
+        "so101-camera-100", "SO-101 front camera 64×64 AV1 video (pyav) + state",
+        ["--env.type=so101_pickplace", "--env.image_obs=true", "--env.image_size=64", "--agent=expert",
+         "--episodes=100", "--seed=730000", "--keep_actions=true"],
+    ),
+}  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--datasets", nargs="+", default=list(DATASETS), choices=list(DATASETS))
     parser.add_argument("--batch_size", type=int, default=512)
     parser.add_argument("--work", default="outputs/measure-throughput")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    state, state_idm = prepare(
-        work, "cartpole-100", ["--env.type=cartpole", "--agent=expert", "--episodes=100", "--seed=710000",
-                               "--keep_actions=true"]
-    )  # fmt: skip
-    video, video_idm = prepare(
-        work, "maze5-video-200", ["--env.type=maze", "--env.size=5", "--agent=random", "--random_start=true",
-                                  "--episodes=200", "--seed=720000"]
-    )  # fmt: skip
     rows = []
-    state_frames = LeRobotDatasetMetadata("local/s", root=state).total_frames
-    video_frames = LeRobotDatasetMetadata("local/v", root=video).total_frames
-    decode = decode_rate(video, args.batch_size)
-    for processes in (1, 2):
-        rows.append(
-            {
-                "dataset": f"CartPole state, {state_frames} frames",
-                "processes": processes,
-                "relabel_fps": relabel_rate(state_idm, state, processes, args.batch_size),
-                "decode_fps": None,
-            }
-        )
-        rows.append(
-            {
-                "dataset": f"Maze 5×5 64×64 AV1 video (pyav), {video_frames} frames",
-                "processes": processes,
-                "relabel_fps": relabel_rate(video_idm, video, processes, args.batch_size),
-                "decode_fps": decode,
-            }
-        )
-        print(rows[-2:], flush=True)  # fmt: skip
+    for name in args.datasets:
+        folder, label, collect = DATASETS[name]
+        root, idm = prepare(work, folder, collect)
+        meta = LeRobotDatasetMetadata("local/d", root=root)
+        decode = decode_rate(root, args.batch_size) if meta.video_keys else None
+        for processes in (1, 2):
+            rows.append(
+                {
+                    "dataset": f"{label}, {meta.total_frames} frames",
+                    "processes": processes,
+                    "relabel_fps": relabel_rate(idm, root, processes, args.batch_size),
+                    "decode_fps": decode,
+                }
+            )
+            print(rows[-1], flush=True)
     command = " ".join(["python", "scripts/measure_throughput.py", *sys.argv[1:]])
-    update(Path(args.out), "throughput", rows, command)
+    update(Path(args.out), "throughput", rows, command, key=("dataset", "processes"))
     print(render(Path(args.out)))
 
 
