@@ -23,12 +23,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import delete_episodes, remove_feature
-from lerobot.policies.factory import make_policy, make_pre_post_processors
 
-from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
+from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint, load_checkpoint
 from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.envs.configs import env_config_from_settings
 from lerobot_iupe.policy.algorithm import r_squared
@@ -87,14 +85,8 @@ def training_fit(checkpoint: Path, dataset: Path, every: int = 3) -> list[float]
     """R² per action dimension of the policy's first action on its own training frames (every ``every``-th), read
     through LeRobot's dataset and processors: whether the policy fits the data it was given, apart from how it
     plays."""
-    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
-    policy_cfg.pretrained_path, policy_cfg.device = checkpoint, "cpu"
     frames = LeRobotDataset(f"local/{dataset.name}", root=dataset, video_backend="pyav")
-    policy = make_policy(cfg=policy_cfg, ds_meta=frames.meta).eval()
-    preprocessor, postprocessor = make_pre_post_processors(
-        policy_cfg=policy_cfg, pretrained_path=str(checkpoint),
-        preprocessor_overrides={"device_processor": {"device": "cpu"}},
-    )  # fmt: skip
+    _, policy, preprocessor, postprocessor = load_checkpoint(checkpoint, ds_meta=frames.meta)
     predicted, true = [], []
     for index in range(0, len(frames), every):
         item = frames[index]

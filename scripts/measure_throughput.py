@@ -56,9 +56,8 @@ def relabel_rate(checkpoint: Path, root: Path, processes: int, batch_size: int) 
     return float(re.search(r"\((\d+) frames/s\)", out).group(1))
 
 
-def decode_rate(root: Path, batch_size: int) -> float:
+def decode_rate(meta: LeRobotDatasetMetadata, batch_size: int) -> float:
     """Frames/s of decoding the dataset's camera alone, in the chunks the relabeller reads."""
-    meta = LeRobotDatasetMetadata("local/d", root=root)
     (camera,) = meta.video_keys
     start = time.perf_counter()
     frames = sum(len(c.frames) - 1 + c.ends_episode for c in video_chunks(meta, camera, batch_size, "pyav"))
@@ -97,7 +96,7 @@ def main() -> None:
         folder, label, collect = DATASETS[name]
         root, idm = prepare(work, folder, collect)
         meta = LeRobotDatasetMetadata("local/d", root=root)
-        decode = decode_rate(root, args.batch_size) if meta.video_keys else None
+        decode = decode_rate(meta, args.batch_size) if meta.video_keys else None
         for processes in (1, 2):
             rows.append(
                 {

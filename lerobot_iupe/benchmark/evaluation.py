@@ -22,6 +22,25 @@ from lerobot_iupe.policy.training import CYCLES_FILE
 EVAL_SEED = 500_000  # evaluation seeds/layouts 500000…: never used by data (0…, 1000…) or rollouts (≥ 1e6)
 
 
+def load_checkpoint(
+    checkpoint: Path, env_cfg: EnvConfig | None = None, ds_meta=None, eval_mode: str | None = None
+) -> tuple[PreTrainedConfig, torch.nn.Module, object, object]:
+    """A saved policy on the CPU as ``lerobot-eval`` loads it: its config, the policy in eval mode and its
+    pre/post-processors; the features come from ``env_cfg`` or ``ds_meta``, as ``make_policy`` takes them."""
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path = checkpoint
+    policy_cfg.device = "cpu"
+    if eval_mode is not None:
+        policy_cfg.eval_mode = eval_mode
+    policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg, ds_meta=ds_meta).eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy_cfg=policy_cfg,
+        pretrained_path=str(checkpoint),
+        preprocessor_overrides={"device_processor": {"device": "cpu"}},
+    )
+    return policy_cfg, policy, preprocessor, postprocessor
+
+
 @torch.no_grad()
 def evaluate_checkpoint(
     checkpoint: Path, env_cfg: EnvConfig, episodes: int, eval_mode: str = "argmax", seed: int = EVAL_SEED
@@ -29,17 +48,8 @@ def evaluate_checkpoint(
     """What lerobot-eval does (make_env, make_policy, LeRobot's processors, eval_policy_all), minus videos;
     ``eval_mode`` is ``--policy.eval_mode``."""
     set_seed(seed)
-    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
-    policy_cfg.pretrained_path = checkpoint
-    policy_cfg.device = "cpu"
-    policy_cfg.eval_mode = eval_mode
     envs = make_env(env_cfg, n_envs=min(episodes, 50), use_async_envs=False)
-    policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg).eval()
-    preprocessor, postprocessor = make_pre_post_processors(
-        policy_cfg=policy_cfg,
-        pretrained_path=str(checkpoint),
-        preprocessor_overrides={"device_processor": {"device": "cpu"}},
-    )
+    policy_cfg, policy, preprocessor, postprocessor = load_checkpoint(checkpoint, env_cfg=env_cfg, eval_mode=eval_mode)
     env_pre, env_post = make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
     info = eval_policy_all(
         envs=envs, policy=policy, env_preprocessor=env_pre, env_postprocessor=env_post, preprocessor=preprocessor,
