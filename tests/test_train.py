@@ -178,10 +178,12 @@ def without_timing(cycles: list[dict]) -> list[dict]:
     return [{k: v for k, v in c.items() if not k.endswith("_s")} for c in cycles]
 
 
+@pytest.mark.parametrize("decay", ["0", "0.8"])  # with a weight average, it goes on from the saved one
 def test_a_resumed_run_continues_exactly_where_an_uninterrupted_one_would_be(
-    cartpole_expert, cartpole_random, tmp_path
+    cartpole_expert, cartpole_random, tmp_path, decay
 ):
     args = ["--batch_size=64", "--save_freq=10", "--policy.cycle_steps=4", "--policy.rollout_episodes=4", "--seed=5"]
+    args.append(f"--policy.ema_decay={decay}")
     whole = tmp_path / "whole"
     run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, whole, "--steps=20", *args))
     parts = tmp_path / "parts"

@@ -114,6 +114,11 @@ class IUPEConfig(PreTrainedConfig):
     # threading, and far faster beside LeRobot's env workers) and torch's default for images.
     torch_threads: int = 0
     optimizer_lr: float = 1e-3
+    # The policy acts, is selected and is saved with an exponential moving average of its trained weights
+    # (avg ← d·avg + (1−d)·w after every optimizer step; d = ema_decay), while the optimizer goes on with the raw
+    # weights; 0 = off (the raw weights). Neighbouring SO-101 checkpoints differ by tens of points in success; the
+    # average smooths that (benchmarks/findings.md).
+    ema_decay: float = 0.0
     # Seed of IUPE's own random streams (rollout seeds, I^s draws, label draws); None = lerobot-train's --seed.
     seed: int | None = None
     push_to_hub: bool = False
@@ -138,6 +143,8 @@ class IUPEConfig(PreTrainedConfig):
             )
         if self.rollout_layouts < 0:
             raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"--policy.ema_decay must be in [0, 1) (0 = no weight average), got {self.ema_decay}")
         if self.eval_mode not in EVAL_MODES:
             raise ValueError(f"--policy.eval_mode must be one of {list(EVAL_MODES)}, got {self.eval_mode!r}")
         if self.idm_context is not None and self.idm_context < 0:

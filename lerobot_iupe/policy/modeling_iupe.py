@@ -81,6 +81,7 @@ class IUPEPolicy(PreTrainedPolicy):
         self.layout = layout  # read on every select_action and rollout step
         self.dataset_meta = dataset_meta
         self._history: Tensor | None = None  # select_action's last n_obs_steps observations (B, n, …)
+        self.averaged: dict[str, Tensor] | None = None  # the policy model's weight average (config.ema_decay)
         # lerobot-train seeds torch with its --seed just before building the policy: that seed drives IUPE's own
         # streams unless --policy.seed is given.
         seed = config.seed if config.seed is not None else torch.initial_seed() % 2**62
@@ -142,6 +143,37 @@ class IUPEPolicy(PreTrainedPolicy):
     def idm_parameters(self) -> list[nn.Parameter]:
         return list(self.idm_encoder.parameters()) + list(self.idm_head.parameters())
 
+    def update_average(self) -> None:
+        """After an optimizer step: move the policy model's weight average towards its weights (``ema_decay``);
+        the first step starts it at them."""
+        if not self.config.ema_decay:
+            return
+        weights = {n: p.detach() for n, p in self.named_parameters() if n.startswith("pm_")}
+        if self.averaged is None:
+            self.averaged = {n: w.clone() for n, w in weights.items()}
+            return
+        for name, average in self.averaged.items():
+            average.lerp_(weights[name], 1.0 - self.config.ema_decay)
+
+    @contextmanager
+    def averaged_weights(self) -> Iterator[None]:
+        """Inside the block the policy model holds its weight average (none yet: its weights); after it, the weights
+        the optimizer trains again."""
+        if self.averaged is None:
+            yield
+            return
+        parameters = dict(self.named_parameters())
+        trained = {n: parameters[n].detach().clone() for n in self.averaged}
+        with torch.no_grad():
+            for name, average in self.averaged.items():
+                parameters[name].copy_(average)
+        try:
+            yield
+        finally:
+            with torch.no_grad():
+                for name, weights in trained.items():
+                    parameters[name].copy_(weights)
+
     @property
     def device_of_weights(self) -> torch.device:
         return self.pm_head.weight.device
@@ -197,6 +229,7 @@ class IUPEPolicy(PreTrainedPolicy):
         return loss, {"pm_loss": float(loss.detach()), **self.trainer.stats}
 
     def update(self) -> None:
+        self.update_average()
         if self.trainer is None or (self.config.supervised and not self.config.separate_selection_episodes):
             return
         self.trainer.step_done()
@@ -208,6 +241,9 @@ class IUPEPolicy(PreTrainedPolicy):
             state_dict = self.trainer.selected_weights
             if self.config.supervised:  # the policy model is selected; the IDM, learning the true actions, is kept
                 state_dict = {**state_dict, **{k: v for k, v in self.state_dict().items() if k.startswith("idm_")}}
+        elif state_dict is None and self.averaged is not None:  # nothing selected: the latest weight average
+            with self.averaged_weights():
+                state_dict = {k: v.clone() for k, v in self.state_dict().items()}
         super()._save_pretrained(save_directory, state_dict)
         if self.trainer is not None:
             self.trainer.save(Path(save_directory))

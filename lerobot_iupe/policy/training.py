@@ -210,6 +210,7 @@ class IUPETrainer:
         its latest one (LeRobot's restored optimizer state belongs to those)."""
         self.selected_weights = copy.deepcopy(self.policy.state_dict())
         self.policy.load_state_dict(saved["latest_weights"])
+        self.policy.averaged = saved.get("averaged_weights")  # None: no average (or a state saved before it)
         self.state.restore(saved)
         self.seed = self.state.seed
 
@@ -354,7 +355,8 @@ class IUPETrainer:
         selected = selects(judged["env"], judged["goal"], (state.best_env_success, state.best_success))
         if selected:
             state.best_env_success, state.best_success = judged["env"], judged["goal"]
-            self.selected_weights = copy.deepcopy(self.policy.state_dict())
+            with self.policy.averaged_weights():  # the model that was judged
+                self.selected_weights = copy.deepcopy(self.policy.state_dict())
         return selected
 
     def selection_rates(self, episodes: int) -> dict[str, float]:
@@ -403,7 +405,8 @@ class IUPETrainer:
         options = [{"layout_id": self.layouts[s % len(self.layouts)]} if self.layouts else None for s in seeds]
         was_training = policy.training
         policy.eval()
-        played = run_episodes(envs, act, seeds, options)
+        with policy.averaged_weights():  # the policy acts with its weight average (ema_decay), as it is saved
+            played = run_episodes(envs, act, seeds, options)
         policy.train(was_training)
         transitions = []
         for episode in played:
@@ -474,5 +477,6 @@ class IUPETrainer:
         """The training state and the cycle records beside a checkpoint."""
         if self.state is None:
             return
-        torch.save(self.state.saved(self.policy.state_dict()), directory / TRAINING_STATE_FILE)
+        saved = {**self.state.saved(self.policy.state_dict()), "averaged_weights": self.policy.averaged}
+        torch.save(saved, directory / TRAINING_STATE_FILE)
         (directory / CYCLES_FILE).write_text("".join(json.dumps(c) + "\n" for c in self.state.cycles))
