@@ -2,10 +2,10 @@
 last n observations (`--policy.n_obs_steps=n`), against n = 1. Data: 50 scripted-expert episodes with actions
 (`lerobot-iupe-collect --agent=expert --keep_actions=true`, seeds 0…), the benchmark's budget (3,000 steps, batch
 64); evaluation as `lerobot-eval` runs it by default (the Gaussian's mode) on 50 episodes, seeds 500000…, at the
-env's 300-step cap. `--ema_decay=d` trains with the policy model's weight average (`--policy.ema_decay=d`); the rows of
-other settings already in history.json are kept.
+env's 300-step cap. `--ema_decay=d` trains with the policy model's weight average (`--policy.ema_decay=d`),
+`--steps` longer or shorter; the rows of other settings already in history.json are kept.
 
-    python scripts/measure_history.py [--ns 1 4] [--seeds 0 1 2] [--jobs 2] [--ema_decay 0.995]
+    python scripts/measure_history.py [--ns 1 4] [--seeds 0 1 2] [--jobs 2] [--ema_decay 0.995] [--steps 3000]
 
 Writes benchmarks/history.json and benchmarks/history.md.
 """
@@ -30,17 +30,28 @@ ENV = {"type": "so101_pickplace"}
 STEPS, BATCH, EPISODES, EVAL_EPISODES = 3000, 64, 50, 50
 
 
-def train(data: Path, out: Path, n: int, seed: int, ema_decay: float) -> Path:
+def run_name(n: int, seed: int, ema_decay: float, steps: int) -> str:
+    """The default setting keeps the first runs' names."""
+    average = f"-ema{str(ema_decay).replace('.', 'p')}" if ema_decay else ""
+    return f"bc-n{n}-s{seed}{average}{'' if steps == STEPS else f'-{steps}steps'}"
+
+
+def train(data: Path, out: Path, n: int, seed: int, ema_decay: float, steps: int) -> Path:
     if not (out / CHECKPOINT).exists():
         shutil.rmtree(out, ignore_errors=True)
         run_cli(
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--policy.n_obs_steps={n}",
             f"--dataset.repo_id=local/{data.name}", f"--dataset.root={data}", f"--output_dir={out}",
-            f"--steps={STEPS}", f"--save_freq={STEPS}", f"--batch_size={BATCH}", "--num_workers=0",
+            f"--steps={steps}", f"--save_freq={steps}", f"--batch_size={BATCH}", "--num_workers=0",
             "--policy.device=cpu", "--wandb.enable=false", f"--seed={seed}", "--log_freq=500",
-            f"--policy.ema_decay={ema_decay}", log=out.with_suffix(".log"), quiet=True, threads=1,
+            f"--policy.ema_decay={ema_decay}", log=out.parent / f"{out.name}.log", quiet=True, threads=1,
         )  # fmt: skip
     return out / CHECKPOINT
+
+
+def setting(row: dict) -> tuple[int, float, int]:
+    """Rows measured before the weight average and --steps existed are the defaults'."""
+    return row["n_obs_steps"], row.get("ema_decay", 0.0), row.get("steps", STEPS)
 
 
 def main() -> None:
@@ -49,6 +60,7 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--jobs", type=int, default=2, help="trainings at once, one thread each")
     parser.add_argument("--ema_decay", type=float, default=0.0, help="--policy.ema_decay of every run (0: none)")
+    parser.add_argument("--steps", type=int, default=STEPS, help="lerobot-train --steps of every run")
     parser.add_argument("--work", default="outputs/measure-history")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -62,44 +74,49 @@ def main() -> None:
             f"--dataset.root={data}", "--overwrite=true",
         )  # fmt: skip
     runs = [(n, seed) for n in args.ns for seed in args.seeds]
-    suffix = f"-ema{args.ema_decay}" if args.ema_decay else ""
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         checkpoints = list(
-            pool.map(lambda r: train(data, work / f"bc-n{r[0]}-s{r[1]}{suffix}", *r, args.ema_decay), runs)
+            pool.map(
+                lambda r: train(data, work / run_name(*r, args.ema_decay, args.steps), *r, args.ema_decay, args.steps),
+                runs,
+            )
         )
     env_cfg = env_config_from_settings(ENV)
-    rows, commands = [], {}
+    rows = []
     for (n, seed), checkpoint in zip(runs, checkpoints, strict=True):
         overall = evaluate_checkpoint(checkpoint, env_cfg, EVAL_EPISODES, "argmax")
+        success = overall["pc_success"] / 100
         rows.append(
-            {"n_obs_steps": n, "ema_decay": args.ema_decay, "seed": seed, "success": overall["pc_success"] / 100}
+            {"n_obs_steps": n, "ema_decay": args.ema_decay, "steps": args.steps, "seed": seed, "success": success}
         )
         print(rows[-1], flush=True)
     command = " ".join(["python", "scripts/measure_history.py", *sys.argv[1:]])
-    setting = lambda r: (r["n_obs_steps"], r.get("ema_decay", 0.0))  # noqa: E731
+    commands = {}
     if (out / "history.json").exists():  # rows of other settings stay, with their own command
         before = json.loads((out / "history.json").read_text())
-        kept = [r for r in before["rows"] if setting(r) not in {setting(r) for r in rows}]
-        commands = {k: before.get("commands", {}).get(k, before["command"]) for k in {str(setting(r)) for r in kept}}
+        new = {setting(r) for r in rows}
+        kept = [r for r in before["rows"] if setting(r) not in new]
+        commands = {str(setting(r)): before.get("commands", {}).get(str(setting(r)), before["command"]) for r in kept}
         rows = kept + rows
     commands.update({str(setting(r)): command for r in rows if str(setting(r)) not in commands})
-    table = ["| n_obs_steps | weight average (ema_decay) | success per seed | mean ± std (ddof 1) | command |"]
-    table.append("|---|---|---|---|---|")
+    table = ["| n_obs_steps | weight average (ema_decay) | steps | success per seed | mean ± std (ddof 1) | command |"]
+    table.append("|---|---|---|---|---|---|")
     for key in sorted({setting(r) for r in rows}):
         success = np.array([r["success"] for r in rows if setting(r) == key])
         spread = f" ± {success.std(ddof=1):.2f}" if len(success) > 1 else ""
-        average = key[1] or "none"
         table.append(
-            f"| {key[0]} | {average} | {' / '.join(f'{s:.2f}' for s in success)} | {success.mean():.2f}{spread} "
-            f"| `{commands[str(key)]}` |"
+            f"| {key[0]} | {key[1] or 'none'} | {key[2]} | {' / '.join(f'{s:.2f}' for s in success)} | "
+            f"{success.mean():.2f}{spread} | `{commands[str(key)]}` |"
         )
     intro = (
-        f"BC on {EPISODES} scripted-expert episodes' true actions ({STEPS} steps, batch {BATCH}), success over "
-        f"{EVAL_EPISODES} episodes (seeds 500000…, cap {env_cfg.episode_length}) by the Gaussian's mode, as "
-        "`lerobot-eval` plays it by default."
+        f"BC on {EPISODES} scripted-expert episodes' true actions (batch {BATCH}), success over {EVAL_EPISODES} "
+        f"episodes (seeds 500000…, cap {env_cfg.episode_length}) by the Gaussian's mode, as `lerobot-eval` plays it "
+        "by default; every setting on the same data and evaluation episodes."
     )
     title = "Policies that remember: BC on SO-101 pick-and-place with an observation history"
     write_page(out, "history", command, rows, title, intro, table)
+    page = json.loads((out / "history.json").read_text())
+    (out / "history.json").write_text(json.dumps({**page, "commands": commands}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

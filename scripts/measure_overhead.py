@@ -123,8 +123,8 @@ def main() -> None:
     lines = [
         "# Wall-clock of a vector run against a plain torch loop",
         "",
-        f"`python scripts/measure_overhead.py --envs {' '.join(args.envs)} --repeats {args.repeats}` (the package's "
-        f"runs by `{' '.join(benchmark)}`). How each side is timed: the script's docstring. Seconds, one thread each.",
+        f"`{' '.join(['python', 'scripts/measure_overhead.py', *sys.argv[1:]])}` (the package's runs by "
+        f"`{' '.join(benchmark)}`). How each side is timed: the script's docstring. Seconds, one thread each.",
         "",
         "| env | method | steps × batch | package run | LeRobot frame loading | lerobot-train start | IDM + rollouts "
         "| plain loop (BC + the run's IDM and rollouts) | package / plain | the same without LeRobot's frame loading |",

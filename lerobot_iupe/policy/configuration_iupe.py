@@ -116,8 +116,9 @@ class IUPEConfig(PreTrainedConfig):
     optimizer_lr: float = 1e-3
     # The policy acts, is selected and is saved with an exponential moving average of its trained weights
     # (avg ← d·avg + (1−d)·w after every optimizer step; d = ema_decay), while the optimizer goes on with the raw
-    # weights; 0 = off (the raw weights). Neighbouring SO-101 checkpoints differ by tens of points in success; the
-    # average smooths that (benchmarks/findings.md).
+    # weights; 0 = off (the raw weights, which every committed benchmark row used). SO-101 BC's success over 3 seeds
+    # spread 1.00 / 0.14 / 0.66 without it and 0.78 / 0.66 / 0.72 with 0.995 (benchmarks/history.md). A supervised
+    # run that does not select keeps no training state, so --resume=true goes on from the saved average.
     ema_decay: float = 0.0
     # Seed of IUPE's own random streams (rollout seeds, I^s draws, label draws); None = lerobot-train's --seed.
     seed: int | None = None
