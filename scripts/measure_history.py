@@ -103,7 +103,9 @@ def main() -> None:
         before = json.loads((out / "history.json").read_text())
         new = {setting(r) for r in rows}
         kept = [r for r in before["rows"] if setting(r) not in new]
-        commands = {str(setting(r)): before.get("commands", {}).get(str(setting(r)), before["command"]) for r in kept}
+        # a page from before per-setting commands has one command for all its rows
+        recorded = before.get("commands") or {str(setting(r)): before["command"] for r in kept}
+        commands = {str(setting(r)): recorded[str(setting(r))] for r in kept}
         rows = kept + rows
     commands.update({str(setting(r)): command for r in rows if str(setting(r)) not in commands})
     table = [
