@@ -66,6 +66,14 @@ ACT_SETTINGS = {
         "--policy.dropout=0.0",
         "--policy.optimizer_lr=1e-3",
     ],
+    # fit with one-action chunks: ACT as a per-step policy, the next action predicted from each observation
+    "fit_step": [
+        "--policy.chunk_size=1",
+        "--policy.n_action_steps=1",
+        "--policy.use_vae=false",
+        "--policy.dropout=0.0",
+        "--policy.optimizer_lr=1e-3",
+    ],
 }
 DEFAULT_ACT = "chunk10"
 COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]

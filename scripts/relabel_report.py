@@ -99,7 +99,8 @@ def render(out: Path) -> str:
             "ACT settings: `chunk10` plays each 10-action chunk open loop, `replan` predicts a chunk every step and "
             "plays its first action, `ensemble` averages every chunk's prediction for the step (ACT's temporal "
             "ensembling, coefficient 0.01), `fit` is `chunk10` without the VAE and dropout at learning rate 1e-3 (a "
-            "scripted expert has one action per state). Standard deviations over seeds with ddof = 1. The last "
+            "scripted expert has one action per state), `fit_step` is `fit` with one-action chunks (`chunk_size=1`: "
+            "ACT as a per-step policy). Standard deviations over seeds with ddof = 1. The last "
             "column is how well ACT fits its own training data: R² per action dimension of the first action of a "
             "chunk predicted on every third training frame (mean over seeds; – where not measured).",
             "",
