@@ -53,6 +53,7 @@ ACT_FLAGS = [
     "--policy.n_decoder_layers=1", "--policy.n_vae_encoder_layers=2", "--policy.optimizer_lr=5e-4",
     "--policy.push_to_hub=false", "--batch_size=64",
 ]  # fmt: skip
+FIT = ["--policy.use_vae=false", "--policy.dropout=0.0", "--policy.optimizer_lr=1e-3"]
 # How ACT plays its chunks (LeRobot's own options): all 10 actions open loop; a new chunk every step, its first
 # action; a new chunk every step, the chunks' predictions for this step averaged (ACT's temporal ensembling).
 ACT_SETTINGS = {
@@ -60,20 +61,9 @@ ACT_SETTINGS = {
     "replan": ["--policy.n_action_steps=1"],
     "ensemble": ["--policy.n_action_steps=1", "--policy.temporal_ensemble_coeff=0.01"],
     # chunk10 fitted harder: a scripted expert has one action per state, so no VAE, no dropout, learning rate 1e-3
-    "fit": [
-        "--policy.n_action_steps=10",
-        "--policy.use_vae=false",
-        "--policy.dropout=0.0",
-        "--policy.optimizer_lr=1e-3",
-    ],
+    "fit": ["--policy.n_action_steps=10", *FIT],
     # fit with one-action chunks: ACT as a per-step policy, the next action predicted from each observation
-    "fit_step": [
-        "--policy.chunk_size=1",
-        "--policy.n_action_steps=1",
-        "--policy.use_vae=false",
-        "--policy.dropout=0.0",
-        "--policy.optimizer_lr=1e-3",
-    ],
+    "fit_step": ["--policy.chunk_size=1", "--policy.n_action_steps=1", *FIT],
 }
 DEFAULT_ACT = "chunk10"
 COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]

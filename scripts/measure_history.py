@@ -81,12 +81,7 @@ def main() -> None:
     runs = [(n, seed) for n in args.ns for seed in args.seeds]
     setup = (args.ema_decay, args.steps, args.hidden_dim)
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        checkpoints = list(
-            pool.map(
-                lambda r: train(data, work / run_name(*r, *setup), *r, *setup),
-                runs,
-            )
-        )
+        checkpoints = list(pool.map(lambda r: train(data, work / run_name(*r, *setup), *r, *setup), runs))
     env_cfg = env_config_from_settings(ENV)
     rows = []
     for (n, seed), checkpoint in zip(runs, checkpoints, strict=True):
