@@ -189,13 +189,18 @@ def test_gaussian_head_mean_fits_a_regression_with_a_hard_dimension_and_uneven_n
     assert std[noisy, 1].median() > 3 * std[~noisy, 1].median()
 
 
-@pytest.mark.parametrize("kind", ["categorical", "gaussian"])
+@pytest.mark.parametrize("kind", ["categorical", "gaussian", "gaussian with a binary dimension"])
 def test_categorical_and_gaussian_heads_keep_one_contract(kind):
     """The loop calls both heads alike: on a distribution peaked at known actions, each method must say so."""
     if kind == "categorical":
         head, best, other = CategoricalHead(4, 3), torch.tensor([2, 0]), torch.tensor([1, 1])
         peaked = torch.tensor([[0.0, 0.0, 5.0], [5.0, 0.0, 0.0]])
         wide = torch.zeros(2, 3)
+    elif kind == "gaussian with a binary dimension":  # dimension 1 is a logit of P(high) between the bounds 0 and 1
+        head = GaussianHead(4, 2, low=[-2.0, 0.0], high=[2.0, 1.0], binary_dims=[1])
+        best, other = torch.tensor([[1.0, 1.0], [-1.0, 0.0]]), torch.tensor([[-1.5, 0.0], [1.5, 1.0]])
+        peaked = torch.tensor([[0.5, 6.0, -3.0, -3.0], [-0.5, -6.0, -3.0, -3.0]])
+        wide = torch.tensor([[0.5, 0.0, 0.5, 0.5], [-0.5, 0.0, 0.5, 0.5]])
     else:
         head = GaussianHead(4, 2, low=[-2.0, 0.0], high=[2.0, 1.0])  # scaled: a = low + (s + 1)(high - low)/2
         best, other = torch.tensor([[1.0, 0.25], [-1.0, 0.75]]), torch.tensor([[-1.5, 0.9], [1.5, 0.1]])
@@ -214,6 +219,56 @@ def test_categorical_and_gaussian_heads_keep_one_contract(kind):
     assert action.dtype == torch.float32 and action.shape == (2, 1 if kind == "categorical" else 2)
 
 
+def test_a_binary_dimension_is_a_bernoulli_between_its_bounds():
+    """SO-101's grasp is commanded open (1) or shut (0): its mode and draws must be one of the bounds, drawn as
+    often as the predicted P(high); the loss must be lowest at the data's share of highs; the labels a policy
+    learns from when exploring carry that share as a soft target."""
+    head = GaussianHead(hidden=1, action_dim=2, low=[-1.0, 0.0], high=[1.0, 1.0], binary_dims=[1])
+    logit = float(np.log(0.7 / 0.3))
+    output = torch.tensor([[0.2, logit, np.log(0.1), 0.0]], dtype=torch.float32).repeat(20000, 1)
+    np.testing.assert_allclose(head.mode(output)[0].numpy(), [0.2, 1.0], atol=1e-6)
+    draws = head.choose(output, explore=True, generator=torch.Generator().manual_seed(0))
+    assert set(draws[:, 1].unique().tolist()) == {0.0, 1.0}
+    assert float(draws[:, 1].mean()) == pytest.approx(0.7, abs=0.01)
+    assert float(draws[:, 0].std()) == pytest.approx(0.1, rel=0.03)  # the Gaussian dimension is unchanged
+    np.testing.assert_allclose(head.likelihood(output[:2], torch.tensor([[0.2, 1.0], [0.2, 0.0]]))[1:] * 0.1 * (
+        2 * np.pi) ** 0.5, [0.3], rtol=1e-5)  # fmt: skip
+    labels, spread = head.labels(output[:1], draws[:1], explore=True)
+    np.testing.assert_allclose(labels.numpy(), [[0.2, 0.7]], atol=1e-5)
+    assert float(spread[0, 1]) == 0.0 and float(spread[0, 0]) == pytest.approx(0.1, rel=1e-5)
+    targets = torch.tensor([[0.2, 1.0]] * 7 + [[0.2, 0.0]] * 3)
+    losses = {
+        shift: float(head.loss(torch.tensor([[0.2, logit + shift, np.log(0.1), 0.0]]).repeat(10, 1), targets))
+        for shift in (-0.5, 0.0, 0.5)
+    }
+    assert losses[0.0] < losses[-0.5] and losses[0.0] < losses[0.5]
+
+
+def test_a_binary_dimension_learns_a_switch_and_plays_only_its_bounds():
+    """A grasp that switches at x = 0.1: fitted by squared error the mode blurs into half-closed values around the
+    switch (the Gaussian head without binary dimensions fails this); as a binary dimension every mode is a bound
+    and away from the switch the right one."""
+    from lerobot_iupe.policy.networks import VectorEncoder
+
+    torch.manual_seed(0)
+    x = torch.rand(4000, 1) * 2 - 1
+    y = (x < 0.1).float()
+    encoder, head = VectorEncoder(1, 16, 64, attention=False), GaussianHead(64, 1, [0.0], [1.0], binary_dims=[0])
+    optimizer = torch.optim.Adam([*encoder.parameters(), *head.parameters()], 1e-3)
+    for _ in range(600):
+        idx = torch.randint(0, len(x), (128,))
+        loss = head.loss(head(encoder(x[idx])), y[idx])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    test = torch.linspace(-1, 1, 401)[:, None]
+    with torch.no_grad():
+        mode = head.mode(head(encoder(test)))[:, 0]
+    assert set(mode.unique().tolist()) <= {0.0, 1.0}
+    away = (test[:, 0] - 0.1).abs() > 0.05
+    assert torch.equal(mode[away], (test[away, 0] < 0.1).float())
+
+
 def test_r_squared():
     true = np.array([[0.0, 1.0], [1.0, 3.0], [2.0, 5.0]])
     assert r_squared(true, true) == 1.0
@@ -230,6 +285,16 @@ def test_bad_continuous_settings_are_refused_naming_the_flag():
         IUPEConfig(action_cells=0)
     with pytest.raises(ValueError, match="--policy.action_low and --policy.action_high must be given together"):
         IUPEConfig(action_low=[-1.0, -1.0], action_high=[1.0])
+    with pytest.raises(ValueError, match=r"--policy.binary_action_dims must list distinct action dimensions"):
+        IUPEConfig(binary_action_dims=[3, 3])
+    with pytest.raises(
+        ValueError, match=r"--policy.binary_action_dims names dimension\(s\) \[4\], but the action has 4"
+    ):
+        IUPEConfig(
+            action_low=[-1.0] * 3 + [0.0], action_high=[1.0] * 4, binary_action_dims=[4]
+        ).check_binary_action_dims()
+    with pytest.raises(ValueError, match=r"--policy.binary_action_dims=\[0\] applies to continuous \(Box\) actions"):
+        IUPEConfig(n_actions=3, binary_action_dims=[0]).check_binary_action_dims()
     with pytest.raises(ValueError, match="--env.action_scale must be positive"):
         SO101PickPlaceEnvConfig(action_scale=0.0).validate()
     state = PolicyFeature(type=FeatureType.STATE, shape=(3,))

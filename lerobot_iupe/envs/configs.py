@@ -255,8 +255,17 @@ class SO101PickPlaceEnvConfig(ClassicEnvConfig):
     # plugin's image observation: the block and goal are then seen, not read). Rendered by MuJoCo offscreen (EGL).
     image_obs: bool = False
     image_size: int = 64
+    # environment_state also carries the block and the goal seen from the end effector (block − ee, goal − ee; 12
+    # entries), as robot-learning suites give object-relative positions: a policy then reads "how far above the
+    # block" directly instead of composing it from absolute coordinates (benchmarks/findings.md measures it).
+    relative_positions: bool = False
+    RELATIVE_NAMES: ClassVar[tuple[str, ...]] = tuple(
+        f"{part}_from_ee.{a}" for part in ("block", "goal") for a in "xyz"
+    )
 
     def __post_init__(self):
+        if self.relative_positions and not self.image_obs:
+            self.features = self.features | {"environment_state": PolicyFeature(type=FeatureType.ENV, shape=(12,))}
         if self.image_obs:
             camera = PolicyFeature(type=FeatureType.VISUAL, shape=(self.image_size, self.image_size, 3))
             self.features = {k: v for k, v in self.features.items() if k != "environment_state"} | {"front": camera}
@@ -271,11 +280,26 @@ class SO101PickPlaceEnvConfig(ClassicEnvConfig):
             raise ValueError(f"--env.episode_length must be at least 1, got {self.episode_length}")
         if self.image_size < 16:
             raise ValueError(f"--env.image_size must be at least 16 pixels, got {self.image_size}")
+        if self.image_obs and self.relative_positions:
+            raise ValueError(
+                "--env.relative_positions=true extends environment_state, which --env.image_obs=true replaces by the "
+                "camera (the block is then seen, not read): pass one of them"
+            )
+
+    def state_names(self, env_key: str) -> list[str]:
+        names = super().state_names(env_key)
+        relative = env_key == "environment_state" and self.relative_positions
+        return names + list(self.RELATIVE_NAMES) if relative else names
 
     def _task_settings(self) -> dict:
-        """The plugin env's settings beyond the time limit: ``gym_kwargs`` and ``settings`` both carry them."""
+        """The plugin env's settings beyond the time limit: ``gym_kwargs`` and ``settings`` both carry them (an
+        option left at its default is left out, so settings recorded before it existed read the same)."""
         camera = {"image_obs": True, "image_size": self.image_size} if self.image_obs else {}
-        return {"action_scale": self.action_scale, "random_block_position": self.random_block_position, **camera}
+        relative = {"relative_positions": True} if self.relative_positions else {}
+        return {
+            "action_scale": self.action_scale, "random_block_position": self.random_block_position, **camera,
+            **relative,
+        }  # fmt: skip
 
     @property
     def gym_kwargs(self) -> dict:

@@ -49,7 +49,7 @@ class SO101PickPlaceEnv(gym.Wrapper):
     task_description = "Pick up the cube and place it on the goal."
 
     def __init__(self, action_scale: float = 0.025, random_block_position: bool = True, image_obs: bool = False,
-                 image_size: int = 64, render_mode: str = "rgb_array"):  # fmt: skip
+                 image_size: int = 64, render_mode: str = "rgb_array", relative_positions: bool = False):  # fmt: skip
         super().__init__(
             SO101PickPlaceGymEnv(
                 action_scale=action_scale,
@@ -68,6 +68,11 @@ class SO101PickPlaceEnv(gym.Wrapper):
             model.vis.quality.shadowsize = 0
             model.light_castshadow[:] = 0
         self.image_obs = image_obs
+        self.relative_positions = relative_positions
+        if relative_positions:  # block − ee and goal − ee after the block and goal (SO101PickPlaceEnvConfig)
+            self.observation_space = gym.spaces.Dict(
+                {**self.env.observation_space, "environment_state": gym.spaces.Box(-np.inf, np.inf, (12,), np.float32)}
+            )
         self.task = "so101_pickplace"
         self._controller = PickPlaceController(action_scale=action_scale)
         self._action_scale = action_scale
@@ -89,13 +94,20 @@ class SO101PickPlaceEnv(gym.Wrapper):
         self._play = {}
         self._success = False
         info["is_success"] = False
-        return obs, info
+        return self._observation(obs), info
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(np.asarray(action, dtype=np.float32).reshape(-1))
         self._success |= bool(info.get("succeed", False))
         info["is_success"] = self._success
-        return obs, reward, terminated, truncated, info
+        return self._observation(obs), reward, terminated, truncated, info
+
+    def _observation(self, obs: dict) -> dict:
+        if not self.relative_positions:
+            return obs
+        world, ee = obs["environment_state"], obs["agent_pos"][-3:]  # agent_pos ends with the end effector's x, y, z
+        relative = np.concatenate([world, world[:3] - ee, world[3:6] - ee]).astype(np.float32)
+        return {**obs, "environment_state": relative}
 
     def expert_action(self) -> np.ndarray:
         """The plugin's scripted controller (hover, descend, close, lift, traverse, lower, open, retreat)."""

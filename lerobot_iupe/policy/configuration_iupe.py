@@ -53,6 +53,10 @@ class IUPEConfig(PreTrainedConfig):
     action_low: list[float] | None = None
     action_high: list[float] | None = None
     action_names: list[str] | None = None
+    # Continuous dimensions that take only their two bounds (a gripper commanded open or shut, e.g. [3] for
+    # SO-101's grasp): fitted as a Bernoulli between the bounds and played as one of them, never in between.
+    # Measured on SO-101 BC: benchmarks/findings.md.
+    binary_action_dims: list[int] = field(default_factory=list)
     # The IDM sees frames t-k … t+1+k to label a_t (k = idm_context; 0 = the pair (s_t, s_{t+1}) of the paper).
     # Edges repeat an episode's first or last frame. k > 0 needs --policy.supervised=true (labelled windows).
     # None = 1 when supervised (best overall in benchmarks/relabel.md), else 0; resolved when training starts, so
@@ -163,6 +167,13 @@ class IUPEConfig(PreTrainedConfig):
             self.action_low is not None and len(self.action_low) != len(self.action_high)
         ):
             raise ValueError("--policy.action_low and --policy.action_high must be given together, one per dimension")
+        if len(set(self.binary_action_dims)) != len(self.binary_action_dims) or any(
+            d < 0 for d in self.binary_action_dims
+        ):
+            raise ValueError(
+                f"--policy.binary_action_dims must list distinct action dimensions (0, 1, …), got "
+                f"{self.binary_action_dims}"
+            )
         if self.image_backbone not in IMAGE_BACKBONES:
             raise ValueError(
                 f"--policy.image_backbone must be one of {list(IMAGE_BACKBONES)}, got {self.image_backbone!r}"
@@ -336,9 +347,27 @@ class IUPEConfig(PreTrainedConfig):
                     self.action_high = [float(x) for x in space.high]
                     self.action_names = action_names(env_cfg)
         self.output_features = {ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(self.action_dim,))}
+        self.check_binary_action_dims()
         # A Gaussian IDM needs more passes than a categorical one: with 2 epochs a cycle LunarLander's held-out R²
         # went 0.07 → 0.29 → 0.60 over three cycles, with 10 epochs 0.78 in the first (40 random episodes).
         self.idm_epochs = self.idm_epochs or (5 if self.is_image else 10 if self.is_continuous else 2)
+
+    def check_binary_action_dims(self) -> None:
+        """``binary_action_dims`` must name dimensions of a continuous action."""
+        if not self.binary_action_dims:
+            return
+        if not self.is_continuous:
+            raise ValueError(
+                f"--policy.binary_action_dims={self.binary_action_dims} applies to continuous (Box) actions; this "
+                f"action space is discrete ({self.n_actions} actions): leave it empty"
+            )
+        outside = [d for d in self.binary_action_dims if d >= self.action_dim]
+        if outside:
+            names = self.action_names or [f"a{i}" for i in range(self.action_dim)]
+            raise ValueError(
+                f"--policy.binary_action_dims names dimension(s) {outside}, but the action has {self.action_dim} "
+                f"(0 … {self.action_dim - 1}: {names})"
+            )
 
     def action_space_from_dataset(self, dataset_meta) -> None:
         """The action space of a labelled dataset without an env: integer actions are ids 0 … max (LeRobot's
