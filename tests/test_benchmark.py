@@ -138,10 +138,13 @@ def test_records_are_keyed_by_everything_that_determines_them():
     assert bc_twenty.config_key(100) != dataclasses.replace(bc_twenty, preset=preset).config_key(100)
     assert run.config_key(100) != dataclasses.replace(run, preset=paper).config_key(100)
     assert run.config_key(100) == Run("table1", "cartpole", preset, "iupe", 0, {}, {}).config_key(100)
-    # SO-101 from uniformly random pre-demonstrations: the play column's env and budget, other data, and only the
-    # learners that read pre-demonstrations
+    # SO-101 from uniformly random pre-demonstrations: the play column's budget, other data, and only the learners
+    # that read pre-demonstrations; it keeps the observation and heads its rows were measured with
     uniform, play = CONTINUOUS["so101_uniform"], CONTINUOUS["so101_pickplace"]
-    assert (uniform.env, uniform.train) == (play.env, play.train) and uniform.data.pre_demos_agent == "random"
+    assert play.env == {**uniform.env, "relative_positions": True} and uniform.data.pre_demos_agent == "random"
+    binary_grasp = {**uniform.train.policy, "binary_action_dims": "[3]"}
+    assert play.train == dataclasses.replace(uniform.train, policy=binary_grasp)
+    assert "--env.relative_positions=true" in play.env_flags()
     assert uniform.data_key(quick=False) != play.data_key(quick=False)
     everything = ["expert", "random", "bc", "bco", "iupe"]
     assert uniform.compared(everything) == ["bco", "iupe"] and play.compared(everything) == everything

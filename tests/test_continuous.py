@@ -297,6 +297,8 @@ def test_bad_continuous_settings_are_refused_naming_the_flag():
         IUPEConfig(n_actions=3, binary_action_dims=[0]).check_binary_action_dims()
     with pytest.raises(ValueError, match="--env.action_scale must be positive"):
         SO101PickPlaceEnvConfig(action_scale=0.0).validate()
+    with pytest.raises(ValueError, match="--env.relative_positions=true extends environment_state, which"):
+        SO101PickPlaceEnvConfig(relative_positions=True, image_obs=True).validate()
     state = PolicyFeature(type=FeatureType.STATE, shape=(3,))
     image = PolicyFeature(type=FeatureType.VISUAL, shape=(3, 8, 8))
     unknown = IUPEConfig(input_features={"observation.state": state}, observation_keys=["observation.nothing"])

@@ -30,16 +30,21 @@ CONFIGS = [
     MazeEnvConfig(size=10),
     LunarLanderEnvConfig(),
     SO101PickPlaceEnvConfig(),
+    SO101PickPlaceEnvConfig(relative_positions=True),
 ]
 
 
-@pytest.mark.parametrize("cfg", CONFIGS, ids=lambda c: f"{c.type}")
+def config_id(cfg) -> str:
+    return cfg.type + ("-relative" if getattr(cfg, "relative_positions", False) else "")
+
+
+@pytest.mark.parametrize("cfg", CONFIGS, ids=config_id)
 def test_env_passes_gymnasium_checker(cfg):
     env = gym.make(cfg.gym_id, **cfg.gym_kwargs).env.env  # below TimeLimit/OrderEnforcing: our own class
     check_env(env, skip_render_check=cfg.type == "so101_pickplace")  # MuJoCo renders only with an OpenGL (GPU) here
 
 
-@pytest.mark.parametrize("cfg", CONFIGS, ids=lambda c: f"{c.type}")
+@pytest.mark.parametrize("cfg", CONFIGS, ids=config_id)
 def test_lerobot_make_env_steps_with_float_actions(cfg):
     envs = make_env(cfg, n_envs=2)
     vec = envs[cfg.type][0]
@@ -206,7 +211,7 @@ def test_env_settings_rebuild_any_lerobot_env_type():
     assert ours.action_scale == 0.05 and ours.type == "so101_pickplace"
 
 
-@pytest.mark.parametrize("cfg", [c for c in CONFIGS if not c.is_image], ids=lambda c: f"{c.type}")
+@pytest.mark.parametrize("cfg", [c for c in CONFIGS if not c.is_image], ids=config_id)
 def test_datasets_name_every_state_entry(cfg):
     features = dataset_features(cfg, with_actions=True)
     for key in ("observation.state", "observation.environment_state"):
@@ -216,8 +221,9 @@ def test_datasets_name_every_state_entry(cfg):
             assert all("." in name for name in names)  # LeRobot's "<part>.<quantity>", never a bare index
 
 
-def test_so101_state_names_say_what_each_entry_is():
-    cfg = SO101PickPlaceEnvConfig()
+@pytest.mark.parametrize("relative", [False, True], ids=["absolute", "relative_positions"])
+def test_so101_state_names_say_what_each_entry_is(relative):
+    cfg = SO101PickPlaceEnvConfig(relative_positions=relative)
     env = cfg.make()
     obs, _ = env.reset(seed=3)
     for _ in range(5):
@@ -233,4 +239,14 @@ def test_so101_state_names_say_what_each_entry_is():
     assert [world[f"block.{a}"] for a in "xyz"] == pytest.approx(list(block), abs=1e-6)
     assert [world[f"goal.{a}"] for a in "xyz"] == pytest.approx(list(sim.goal_pos), abs=1e-6)
     assert -1 <= state["gripper.pos"] <= 1
+    assert env.observation_space["environment_state"].shape == (12 if relative else 6,)
+    assert cfg.features["environment_state"].shape == (12 if relative else 6,)
+    if relative:  # the block and the goal seen from the end effector
+        assert [world[f"block_from_ee.{a}"] for a in "xyz"] == pytest.approx(list(block - ee), abs=1e-6)
+        assert [world[f"goal_from_ee.{a}"] for a in "xyz"] == pytest.approx(list(sim.goal_pos - ee), abs=1e-6)
+        settings = env_settings(cfg)
+        assert settings["relative_positions"] is True
+        assert env_config_from_settings(settings).features["environment_state"].shape == (12,)
+    else:  # settings recorded before the option existed rebuild the same env
+        assert "relative_positions" not in env_settings(cfg)
     env.close()
