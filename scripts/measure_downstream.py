@@ -2,9 +2,11 @@
 true actions and (b) the same dataset stripped of its actions and relabelled by an IDM trained on 20% of its
 episodes (`--policy.supervised=true`), both evaluated by LeRobot's evaluation loop; 3 seeds per arm.
 
-    python scripts/measure_downstream.py [--envs lunarlander so101_pickplace so101_camera] [--seeds 0 1 2]
+    python scripts/measure_downstream.py [--envs lunarlander so101_pickplace so101_camera so101_relative]
+        [--seeds 0 1 2]
 
-so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both.
+so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both;
+so101_relative also gives the block and goal seen from the end effector (`--env.relative_positions=true`).
 
 Writes the rows (env, policy, labels, seed, success_rate, …) into benchmarks/relabel.json under "downstream" and
 renders benchmarks/relabel.md. Evaluation is `eval_policy_all`, what `lerobot-eval` runs, without its video
@@ -39,12 +41,15 @@ ENVS = {  # name -> (expert episodes, IDM steps, ACT steps)
     "lunarlander": (50, 2000, 1500),
     "so101_pickplace": (50, 2000, 1500),
     "so101_camera": (50, 2000, 1500),
+    "so101_relative": (50, 2000, 1500),
 }
-# The env settings of each name: SO-101 with its front camera (64 px) and its state, no block or goal positions.
+# The env settings of each name: SO-101 with its front camera (64 px) and its state, no block or goal positions;
+# SO-101 with the block and goal also seen from the end effector.
 ENV_SETTINGS = {
     "lunarlander": {"type": "lunarlander"},
     "so101_pickplace": {"type": "so101_pickplace"},
     "so101_camera": {"type": "so101_pickplace", "image_obs": True, "image_size": 64},
+    "so101_relative": {"type": "so101_pickplace", "relative_positions": True},
 }
 # A CPU-sized ACT (LeRobot's defaults are for 480-px cameras): 10-step chunks, 128-wide transformer.
 ACT_FLAGS = [

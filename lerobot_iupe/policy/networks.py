@@ -5,6 +5,8 @@ discrete action spaces, and a head for continuous actions is its sibling with th
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
@@ -218,7 +220,9 @@ class GaussianHead(nn.Linear):
 
     LOG_STD_RANGE = (-5.0, 1.0)
 
-    def __init__(self, hidden: int, action_dim: int, low: list[float], high: list[float], binary_dims=()):
+    def __init__(
+        self, hidden: int, action_dim: int, low: list[float], high: list[float], binary_dims: Sequence[int] = ()
+    ):
         super().__init__(hidden, 2 * action_dim)
         self.action_dim = action_dim
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).reshape(action_dim))
