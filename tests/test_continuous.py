@@ -153,6 +153,17 @@ def test_gaussian_labels_with_a_spread_train_as_draws_do_on_average_without_thei
     assert head.labels(idm, labels, explore=False)[1] is None  # not exploring: the mode, exactly
 
 
+def fit(encoder: torch.nn.Module, head: GaussianHead, x: torch.Tensor, y: torch.Tensor, steps: int) -> None:
+    """Adam on the head's loss, batches of 128 drawn from (x, y)."""
+    optimizer = torch.optim.Adam([*encoder.parameters(), *head.parameters()], 1e-3)
+    for _ in range(steps):
+        idx = torch.randint(0, len(x), (128,))
+        loss = head.loss(head(encoder(x[idx])), y[idx])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+
 def test_gaussian_head_mean_fits_a_regression_with_a_hard_dimension_and_uneven_noise():
     """The mean must fit as a plain regression does where the likelihood alone starves it: one dimension is a
     chirp (hard to fit) and the other's noise is 15x larger in half of the inputs. Trained by the joint likelihood,
@@ -172,13 +183,7 @@ def test_gaussian_head_mean_fits_a_regression_with_a_hard_dimension_and_uneven_n
     x, _, y = data(4000)
     test_x, test_mean, _ = data(2000)
     encoder, head = VectorEncoder(2, 16, 64, attention=True), GaussianHead(64, 2, [-1.0, -1.0], [1.0, 1.0])
-    optimizer = torch.optim.Adam([*encoder.parameters(), *head.parameters()], 1e-3)
-    for _ in range(2500):
-        idx = torch.randint(0, len(x), (128,))
-        loss = head.loss(head(encoder(x[idx])), y[idx])
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
+    fit(encoder, head, x, y, steps=2500)
     with torch.no_grad():
         output = head(encoder(test_x))
     predicted = head.mode(output).numpy()
@@ -254,13 +259,7 @@ def test_a_binary_dimension_learns_a_switch_and_plays_only_its_bounds():
     x = torch.rand(4000, 1) * 2 - 1
     y = (x < 0.1).float()
     encoder, head = VectorEncoder(1, 16, 64, attention=False), GaussianHead(64, 1, [0.0], [1.0], binary_dims=[0])
-    optimizer = torch.optim.Adam([*encoder.parameters(), *head.parameters()], 1e-3)
-    for _ in range(600):
-        idx = torch.randint(0, len(x), (128,))
-        loss = head.loss(head(encoder(x[idx])), y[idx])
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
+    fit(encoder, head, x, y, steps=600)
     test = torch.linspace(-1, 1, 401)[:, None]
     with torch.no_grad():
         mode = head.mode(head(encoder(test)))[:, 0]
