@@ -30,7 +30,7 @@ from lerobot.datasets.dataset_tools import delete_episodes, remove_feature
 
 from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint, load_checkpoint
 from lerobot_iupe.data.readers import action_array, column_array
-from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.envs.configs import env_cli_flags, env_config_from_settings
 from lerobot_iupe.policy.algorithm import r_squared
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -155,7 +155,7 @@ def measure(
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
     variant = f"k{k}" + "".join(f"-{key.split('.')[-1]}" for key in keys)  # e.g. k1-front: the camera alone
     stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-{variant}"
-    env_flags = [f"--env.{name}={str(value).lower()}" for name, value in ENV_SETTINGS[env].items()]
+    env_flags = env_cli_flags(ENV_SETTINGS[env])
     if not truth.exists():
         run(
             "lerobot-iupe-collect", *env_flags, "--agent=expert", f"--episodes={episodes}", "--seed=0",

@@ -22,23 +22,34 @@ import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from relabel_report import write_page
 
 from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
 from lerobot_iupe.benchmark.runner import CHECKPOINT, run_cli
-from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.envs.configs import env_cli_flags, env_config_from_settings
 
 ENV = {"type": "so101_pickplace"}
 STEPS, BATCH, EPISODES, EVAL_EPISODES = 3000, 64, 50, 50
 HIDDEN = 64  # the policy's default hidden_dim
 
 
-def run_name(
-    n: int, seed: int, ema_decay: float, steps: int, hidden: int, binary: tuple[int, ...], relative: bool
-) -> str:
+class Setting(NamedTuple):
+    """One row group of the table: everything but the seed."""
+
+    n_obs_steps: int
+    ema_decay: float
+    steps: int
+    hidden_dim: int
+    binary_action_dims: tuple[int, ...]
+    relative_positions: bool
+
+
+def run_name(seed: int, setting: Setting) -> str:
     """The default setting keeps the first runs' names."""
+    n, ema_decay, steps, hidden, binary, relative = setting
     average = f"-ema{str(ema_decay).replace('.', 'p')}" if ema_decay else ""
     width = "" if hidden == HIDDEN else f"-h{hidden}"
     two_valued = f"-bin{''.join(map(str, binary))}" if binary else ""
@@ -46,17 +57,8 @@ def run_name(
     return f"bc-n{n}-s{seed}{average}{'' if steps == STEPS else f'-{steps}steps'}{width}{two_valued}{seen_from_ee}"
 
 
-def train(
-    data: Path,
-    out: Path,
-    n: int,
-    seed: int,
-    ema_decay: float,
-    steps: int,
-    hidden: int,
-    binary: tuple[int, ...],
-    relative: bool,
-) -> Path:
+def train(data: Path, out: Path, seed: int, setting: Setting) -> Path:
+    n, ema_decay, steps, hidden, binary, _ = setting
     if not (out / CHECKPOINT).exists():
         shutil.rmtree(out, ignore_errors=True)
         run_cli(
@@ -71,17 +73,17 @@ def train(
     return out / CHECKPOINT
 
 
-def setting(row: dict) -> tuple[int, float, int, int, tuple[int, ...], bool]:
+def setting(row: dict) -> Setting:
     """Rows measured before an option existed are its default's."""
-    return (
+    return Setting(
         row["n_obs_steps"], row.get("ema_decay", 0.0), row.get("steps", STEPS), row.get("hidden_dim", HIDDEN),
         tuple(row.get("binary_action_dims", ())), row.get("relative_positions", False),
     )  # fmt: skip
 
 
-def command_key(key: tuple) -> str:
+def command_key(key: Setting) -> str:
     """history.json's key of a setting's command; settings at the later options' defaults keep their first keys."""
-    return str(key if any(key[4:]) else key[:4])
+    return str(tuple(key) if key.binary_action_dims or key.relative_positions else tuple(key[:4]))
 
 
 def main() -> None:
@@ -105,24 +107,25 @@ def main() -> None:
     data = work / f"so101-expert-actions{'-rel' if args.relative_positions else ''}"
     if not (data / "meta" / "info.json").exists():
         run_cli(
-            "lerobot-iupe-collect", *[f"--env.{k}={str(v).lower()}" for k, v in env.items()], "--agent=expert",
+            "lerobot-iupe-collect", *env_cli_flags(env), "--agent=expert",
             f"--episodes={EPISODES}", "--seed=0", "--keep_actions=true", f"--dataset.repo_id=local/{data.name}",
             f"--dataset.root={data}", "--overwrite=true",
         )  # fmt: skip
-    runs = [(n, seed) for n in args.ns for seed in args.seeds]
-    setup = (args.ema_decay, args.steps, args.hidden_dim, tuple(args.binary_action_dims), args.relative_positions)
+    runs = [
+        (seed, Setting(n, args.ema_decay, args.steps, args.hidden_dim, tuple(args.binary_action_dims),
+                       args.relative_positions))
+        for n in args.ns for seed in args.seeds
+    ]  # fmt: skip
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        checkpoints = list(pool.map(lambda r: train(data, work / run_name(*r, *setup), *r, *setup), runs))
+        checkpoints = list(pool.map(lambda r: train(data, work / run_name(*r), *r), runs))
     env_cfg = env_config_from_settings(env)
     rows = []
-    for (n, seed), checkpoint in zip(runs, checkpoints, strict=True):
+    for (seed, run_setting), checkpoint in zip(runs, checkpoints, strict=True):
         overall = evaluate_checkpoint(checkpoint, env_cfg, EVAL_EPISODES, "argmax")
         success = overall["pc_success"] / 100
-        rows.append({
-            "n_obs_steps": n, "ema_decay": args.ema_decay, "steps": args.steps, "hidden_dim": args.hidden_dim,
-            "binary_action_dims": list(args.binary_action_dims), "relative_positions": args.relative_positions,
-            "seed": seed, "success": success,
-        })  # fmt: skip
+        fields = run_setting._asdict()
+        rows.append({**fields, "binary_action_dims": list(run_setting.binary_action_dims), "seed": seed,
+                     "success": success})  # fmt: skip
         print(rows[-1], flush=True)
     command = " ".join(["python", "scripts/measure_history.py", *sys.argv[1:]])
     commands = {}
@@ -144,8 +147,8 @@ def main() -> None:
         success = np.array([r["success"] for r in rows if setting(r) == key])
         spread = f" ± {success.std(ddof=1):.2f}" if len(success) > 1 else ""
         table.append(
-            f"| {key[0]} | {key[1] or 'none'} | {key[2]} | {key[3]} | {list(key[4]) or 'none'} | "
-            f"{'yes' if key[5] else 'no'} | "
+            f"| {key.n_obs_steps} | {key.ema_decay or 'none'} | {key.steps} | {key.hidden_dim} | "
+            f"{list(key.binary_action_dims) or 'none'} | {'yes' if key.relative_positions else 'no'} | "
             f"{' / '.join(f'{s:.2f}' for s in success)} | {success.mean():.2f}{spread} | "
             f"`{commands[command_key(key)]}` |"
         )

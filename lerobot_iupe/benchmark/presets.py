@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.envs.configs import env_cli_flags, env_config_from_settings
 
 # The paper's Table 1 (P, AER) and Table 2 (Maze 10×10, P, AER).
 PAPER_TABLE1 = {
@@ -114,7 +114,7 @@ class EnvPreset:
         return min(episodes, scored) if scored else episodes
 
     def env_flags(self) -> list[str]:
-        return [f"--env.{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in self.env.items()]
+        return env_cli_flags(self.env)
 
     @property
     def layouts(self) -> list[str | None]:

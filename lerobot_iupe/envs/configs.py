@@ -331,6 +331,11 @@ def env_config_from_settings(settings: dict) -> EnvConfig:
     return EnvConfig.get_choice_class(settings["type"])(**fields)
 
 
+def env_cli_flags(settings: dict) -> list[str]:
+    """The ``--env.*`` flags of the LeRobot CLIs that build the env of ``settings`` (booleans as draccus reads them)."""
+    return [f"--env.{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in settings.items()]
+
+
 def env_settings(env_cfg: EnvConfig) -> dict:
     """What rebuilds ``env_cfg`` with ``env_config_from_settings``: this package's ``settings()``, or for any other
     LeRobot env type its plain (number, string, bool) config fields."""

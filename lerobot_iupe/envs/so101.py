@@ -59,14 +59,13 @@ class SO101PickPlaceEnv(gym.Wrapper):
                 render_spec=GymRenderingSpec(height=image_size, width=image_size),
             )
         )
-        if image_obs:
-            use_offscreen_gl()
-            # Without multisampling and shadows MuJoCo renders 8x faster on a CPU (scripts/measure_render.py); the
-            # scene stays legible at 64 px.
-            model = self.env.unwrapped._model
-            model.vis.quality.offsamples = 0
-            model.vis.quality.shadowsize = 0
-            model.light_castshadow[:] = 0
+        # Every SO-101 env renders (the camera observation, or lerobot-eval's videos), so every one renders offscreen
+        # headless, without multisampling and shadows: 8x faster on a CPU (scripts/measure_render.py), legible at 64 px.
+        use_offscreen_gl()
+        model = self.env.unwrapped._model
+        model.vis.quality.offsamples = 0
+        model.vis.quality.shadowsize = 0
+        model.light_castshadow[:] = 0
         self.image_obs = image_obs
         self.relative_positions = relative_positions
         if relative_positions:  # block − ee and goal − ee after the block and goal (SO101PickPlaceEnvConfig)

@@ -243,7 +243,13 @@ class GaussianHead(nn.Linear):
         return 2.0 * (actions.float() - self.low) / (self.high - self.low) - 1.0
 
     def _unscale(self, scaled: Tensor) -> Tensor:
-        return self.low + (scaled + 1.0) * 0.5 * (self.high - self.low)
+        return self.low + self._share_of_high(scaled) * (self.high - self.low)
+
+    @staticmethod
+    def _share_of_high(scaled: Tensor) -> Tensor:
+        """Where a scaled value lies between the bounds: 0 at the low one, 1 at the high one (on a binary
+        dimension, P(high) of its Bernoulli mean)."""
+        return (scaled + 1.0) * 0.5
 
     def mean_and_std(self, output: Tensor) -> tuple[Tensor, Tensor]:
         """Mean and standard deviation in the scaled space ([-1, 1] per dimension); on a binary dimension those of
@@ -270,7 +276,7 @@ class GaussianHead(nn.Linear):
         gaussian = (target - raw_mean).square() + 0.5 * residual / std.square() + std.log()
         if not self.binary.any():
             return gaussian.mean()
-        high_share = ((target + 1.0) * 0.5).clamp(0.0, 1.0)
+        high_share = self._share_of_high(target).clamp(0.0, 1.0)
         bernoulli = F.binary_cross_entropy_with_logits(raw_mean, high_share, reduction="none")
         return torch.where(self.binary, bernoulli, gaussian).mean()
 
@@ -281,12 +287,14 @@ class GaussianHead(nn.Linear):
         if not explore:
             return drawn, None
         mean, std = self.mean_and_std(output)
-        labels = torch.where(self.binary, self._unscale(mean), self.mode(output))
+        labels = torch.where(self.binary, self._unscale(mean), self._pick(mean, std, explore=False))
         return labels, torch.where(self.binary, 0.0, std)
 
     def choose(self, output: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
         """One action per row (B, action_dim): a draw from the distribution when exploring, else its mode."""
-        mean, std = self.mean_and_std(output)
+        return self._pick(*self.mean_and_std(output), explore, generator)
+
+    def _pick(self, mean: Tensor, std: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
         scaled = mean
         if explore:
             scaled = mean + std * torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
@@ -294,7 +302,7 @@ class GaussianHead(nn.Linear):
             threshold = (
                 torch.rand(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype) if explore else 0.5
             )
-            scaled = torch.where(self.binary, torch.where((mean + 1.0) * 0.5 > threshold, 1.0, -1.0), scaled)
+            scaled = torch.where(self.binary, torch.where(self._share_of_high(mean) > threshold, 1.0, -1.0), scaled)
         return self._unscale(scaled.clamp(-1.0, 1.0))
 
     def mode(self, output: Tensor) -> Tensor:
@@ -313,7 +321,7 @@ class GaussianHead(nn.Linear):
         scaled = self._scale(chosen)
         density = torch.exp(-0.5 * ((scaled - mean) / std).square()) / (std * (2 * torch.pi) ** 0.5)
         if self.binary.any():
-            high_share = (mean + 1.0) * 0.5
+            high_share = self._share_of_high(mean)
             density = torch.where(self.binary, torch.where(scaled > 0, high_share, 1.0 - high_share), density)
         return density.prod(-1)
 
