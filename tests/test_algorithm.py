@@ -63,6 +63,18 @@ def test_r_one_gives_only_successful_transitions(pre, successful):
     assert np.bincount(sampled.actions, minlength=3).tolist() == [150, 50, 0]
 
 
+def test_max_success_share_keeps_pre_demonstrations_when_every_rollout_succeeds(pre, successful):
+    # r = 1 capped at 0.8: P(a|E) scaled to [0.6, 0.2, 0]; pre weights 100·(1 − P) = 40 : 80 : 100 of the other 200
+    from_success, from_pre = sampling_counts(np.array([0.75, 0.25, 0.0]), np.array([100, 100, 100]), 1000, 0.8)
+    assert from_success.tolist() == [600, 200, 0]
+    assert from_pre.tolist() == [36, 73, 91]
+    sampled = build_sampled_set(pre, successful, np.array([0.75, 0.25, 0.0]), 200, np.random.default_rng(0),
+                                max_success_share=0.8)  # fmt: skip
+    assert (sampled.states[:, 0] == 0.0).sum() == 40  # a fifth from I_pre
+    below = sampling_counts(np.array([0.5, 0.0, 0.0]), np.array([200, 60, 40]), 1000, 0.8)
+    assert [c.tolist() for c in below] == [[500, 0, 0], [250, 150, 100]]  # r under the cap: the paper's rule
+
+
 @pytest.mark.parametrize("size", [100, 301, 1000])
 def test_mixed_shares_follow_eq1_and_inverse_probability(pre, successful, size):
     p = np.array([0.3, 0.1, 0.0])  # r = 0.4

@@ -143,7 +143,13 @@ def test_records_are_keyed_by_everything_that_determines_them():
     uniform, play = CONTINUOUS["so101_uniform"], CONTINUOUS["so101_pickplace"]
     assert play.env == {**uniform.env, "relative_positions": True} and uniform.data.pre_demos_agent == "random"
     binary_grasp = {**uniform.train.policy, "binary_action_dims": "[3]"}
-    assert play.train == dataclasses.replace(uniform.train, policy=binary_grasp)
+    assert play.train == dataclasses.replace(
+        uniform.train, policy=binary_grasp, sampling_policy={"max_success_share": "0.8"}
+    )
+    # the sampling rule's settings reach the learners that sample, and only them (BC's and BCO(α)'s rows stay)
+    flags = {m: Run("continuous", "so101_pickplace", play, m, 0, {}, {}).train_flags for m in ("bc", "bco", "iupe")}
+    assert "--policy.max_success_share=0.8" in flags["iupe"]
+    assert not any("max_success_share" in f for f in flags["bc"] + flags["bco"])
     assert "--env.relative_positions=true" in play.env_flags()
     assert uniform.data_key(quick=False) != play.data_key(quick=False)
     everything = ["expert", "random", "bc", "bco", "iupe"]

@@ -294,6 +294,9 @@ def test_bad_continuous_settings_are_refused_naming_the_flag():
         ).check_binary_action_dims()
     with pytest.raises(ValueError, match=r"--policy.binary_action_dims=\[0\] applies to continuous \(Box\) actions"):
         IUPEConfig(n_actions=3, binary_action_dims=[0]).check_binary_action_dims()
+    for share in (0.0, 1.5):
+        with pytest.raises(ValueError, match=r"--policy.max_success_share must be in \(0, 1\]"):
+            IUPEConfig(max_success_share=share)
     with pytest.raises(ValueError, match="--env.action_scale must be positive"):
         SO101PickPlaceEnvConfig(action_scale=0.0).validate()
     with pytest.raises(ValueError, match="--env.relative_positions=true extends environment_state, which"):

@@ -120,7 +120,9 @@ class Run:
 
     @property
     def train_flags(self) -> list[str]:
-        return [*self.budget.flags(), *method_flags(self.method)]
+        method = method_flags(self.method)
+        sampling = self.method != "bc" and "--policy.sampling=false" not in method
+        return [*self.budget.flags(sampling), *method]
 
     @property
     def budget(self):

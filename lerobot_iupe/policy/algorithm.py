@@ -49,16 +49,20 @@ def apportion(total: int, weights: np.ndarray, minimum_one: np.ndarray | None = 
     return counts
 
 
-def sampling_counts(p_success: np.ndarray, pre_counts: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+def sampling_counts(
+    p_success: np.ndarray, pre_counts: np.ndarray, size: int, max_success_share: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """How many transitions per action to take from successful runs and from pre-demonstrations.
 
     With r = Σ P(a|E): share r of ``size`` from successful runs, per action ∝ P(a|E); share 1 − r from
     pre-demonstrations, per action ∝ n_pre(a) · (1 − P(a|E)) ("inverse probability" applied to I_pre's own action
     frequencies, so that r = 0 gives I_pre's distribution — I_pre itself at size |I_pre| — also when I_pre is not
     balanced; on a balanced I_pre this is the paper's ∝ 1 − P(a|E)). Every action present in I_pre is kept (at
-    least one sample) while r < 1."""
+    least one sample) while r < 1. Where r exceeds ``max_success_share``, P(a|E) is scaled down to sum to it."""
     pre_counts = np.asarray(pre_counts)
     r = float(np.clip(p_success.sum(), 0.0, 1.0))
+    if r > max_success_share:
+        p_success, r = np.asarray(p_success) * (max_success_share / r), max_success_share
     n_success = int(round(r * size))
     from_success = apportion(n_success, p_success)
     pre_weights = pre_counts * np.clip(1.0 - p_success, 0.0, None)
@@ -74,6 +78,7 @@ def build_sampled_set(
     rng: np.random.Generator,
     pre_classes: np.ndarray | None = None,
     successful_classes: np.ndarray | None = None,
+    max_success_share: float = 1.0,
 ) -> Transitions:
     """I^s by the sampling rule; a class with fewer transitions than its share is drawn with replacement.
     ``successful`` holds only transitions of rollouts that reached the goal. The classes of each transition are
@@ -82,7 +87,7 @@ def build_sampled_set(
     pre_classes = pre.actions if pre_classes is None else pre_classes
     successful_classes = successful.actions if successful_classes is None else successful_classes
     pre_counts = np.bincount(pre_classes, minlength=n_classes)[:n_classes]
-    from_success, from_pre = sampling_counts(p_success, pre_counts, size)
+    from_success, from_pre = sampling_counts(p_success, pre_counts, size, max_success_share)
     picks = []
     for source, classes, counts in ((successful, successful_classes, from_success), (pre, pre_classes, from_pre)):
         for cls, count in enumerate(counts):

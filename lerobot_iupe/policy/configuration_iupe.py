@@ -41,6 +41,11 @@ class IUPEConfig(PreTrainedConfig):
     pre_demos_root: str | None = None
     # The three mechanisms of the paper.
     sampling: bool = True
+    # The largest share of I^s that sampling draws from successful rollouts (the paper: 1.0, so I^s holds no
+    # pre-demonstrations once every rollout succeeds). Below 1 the success distribution is scaled down to it and
+    # pre-demonstrations keep the rest: on SO-101 the IDM retrained on successful rollouts alone lost R² on the
+    # expert (0.95 → 0.85–0.92 in every such cycle) and the next cycle's success fell (benchmarks/findings.md).
+    max_success_share: float = 1.0
     exploration: bool = True
     attention: bool = True
     supervised: bool = False
@@ -145,6 +150,10 @@ class IUPEConfig(PreTrainedConfig):
         if self.selection_episodes is not None and self.selection_episodes < 0:
             raise ValueError(
                 f"--policy.selection_episodes must be 0 (select on the rollouts) or more, got {self.selection_episodes}"
+            )
+        if not 0.0 < self.max_success_share <= 1.0:
+            raise ValueError(
+                f"--policy.max_success_share must be in (0, 1] (1 = the paper's sampling), got {self.max_success_share}"
             )
         if self.rollout_layouts < 0:
             raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")

@@ -276,13 +276,16 @@ class IUPETrainer:
             successful, new_held = self._split(successful, classes)
             if self.cells is None:
                 p_success = success_action_distribution([e.actions for e in episodes], successes, cfg.n_actions)
-                sampled = build_sampled_set(pre, successful, p_success, state.sampled_set_size, state.rng)
+                sampled = build_sampled_set(
+                    pre, successful, p_success, state.sampled_set_size, state.rng,
+                    max_success_share=cfg.max_success_share,
+                )  # fmt: skip
             else:  # continuous: the rule on action cells
                 classes = [self.cells.assign(e.actions) for e in episodes]
                 p_success = success_action_distribution(classes, successes, self.cells.k)
                 sampled = build_sampled_set(
                     pre, successful, p_success, state.sampled_set_size, state.rng,
-                    self.cells.assign(pre.actions), self.cells.assign(successful.actions),
+                    self.cells.assign(pre.actions), self.cells.assign(successful.actions), cfg.max_success_share,
                 )  # fmt: skip
         else:  # BCO(α): the IDM learns from I_pre and all of the policy's latest rollouts
             rollouts, new_held = self._split(Transitions.concat(episodes))
