@@ -182,7 +182,7 @@ SO101_POLICY = {
 SO101_ENV = {"type": "so101_pickplace", "relative_positions": True}
 SO101_TASK_POLICY = {**SO101_POLICY, "binary_action_dims": "[3]"}
 # IUPE keeps a fifth of its IDM's data from the play pre-demonstrations when every rollout succeeds: with the
-# paper's share of 1 the IDM lost R² on the expert in each such cycle (0.95 -> 0.85-0.92; findings.md).
+# paper's share of 1 the IDM's held-out R² fell in each such cycle (0.94-0.96 -> 0.85-0.92; findings.md).
 SO101_SAMPLING = {"max_success_share": "0.8"}
 # LunarLander trains 6,000 steps (30 cycles): at 3,000 IUPE's selection success was still rising at the last cycle
 # (seed 2: 0.85), and the same run trained on to 6,000 scored P 0.990 by the mode against 0.839 (findings.md).
