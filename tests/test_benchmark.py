@@ -9,7 +9,7 @@ from pathlib import Path
 import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
 
-from lerobot_iupe.benchmark import CONTINUOUS, PRESETS, Run, method_flags, read_training_run
+from lerobot_iupe.benchmark import CONTINUOUS, PRESETS, Benchmark, Run, method_flags, read_training_run
 from lerobot_iupe.benchmark.report import _cell, plot_results
 
 LAYOUTS = ("demo", "heldout")
@@ -91,6 +91,20 @@ def test_quick_benchmark_writes_records_tables_and_plots(tmp_path):
     merged = run_in_process("lerobot-iupe-benchmark", *args, work, f"--out={older}", f"--from={older}")
     assert merged.returncode == 0 and "lerobot-train" not in merged.stdout and "1 records added" in merged.stdout
     assert json.loads((older / "results.json").read_text()) == published
+
+
+def test_references_are_read_from_the_recorded_agent_rows_instead_of_played_again(tmp_path):
+    """A resumed call (or one seeded by --from) takes R_expert and R_random from the built-in agents' recorded rows
+    of the same configuration; a row of another configuration does not stand for these episodes."""
+    preset, episodes = PRESETS["cartpole"], 5
+    bench = Benchmark(tmp_path, eval_episodes=episodes)
+    for agent, aer in (("expert", 123.0), ("random", 4.5)):
+        config = Run("table1", "cartpole", preset, agent, None, {}, {}).config_key(episodes)
+        bench._save({"table": "table1", "env": "cartpole", "method": agent, "seed": None, "config": config,
+                     "eval_layouts": None, "eval_mode": None, "AER": aer, "success_rate": 0.0})  # fmt: skip
+    assert bench.references(preset) == {None: (123.0, 4.5)}  # played, CartPole's expert would score 500
+    other = Benchmark(tmp_path, eval_episodes=3)  # the same rows, but 3 scored episodes: played for real
+    assert other.references(preset)[None][0] == 500.0
 
 
 def test_jobs_below_one_is_refused_and_nothing_is_written(tmp_path):

@@ -239,16 +239,28 @@ class Benchmark:
 
     def agent_evaluation(self, agent: str, preset: EnvPreset, layouts: str | None) -> dict:
         """A built-in agent on the scored episodes of ``preset`` (evaluated once per env, layouts and episode
-        count: every table of an env shares it)."""
+        count: every table of an env shares it). A recorded row of the agent with the configuration key its row
+        would have (a resumed call, or a report added by --from) is that evaluation: it is read, not played again,
+        as a recorded run is not trained again (``--rerun --methods expert random`` plays them anew)."""
         episodes = preset.scored_episodes(layouts, self.eval_episodes)
         env_cfg = preset.env_config(layouts)
         key = digest([agent, repr(env_cfg), episodes])
         with self._lock:
             if key in self._agents:
                 return self._agents[key]
-        overall = evaluate_agent(agent, env_cfg, episodes)
+            recorded = self._recorded_agent_evaluation(agent, preset, layouts)
+        overall = recorded or evaluate_agent(agent, env_cfg, episodes)
         with self._lock:
             return self._agents.setdefault(key, overall)
+
+    def _recorded_agent_evaluation(self, agent: str, preset: EnvPreset, layouts: str | None) -> dict | None:
+        """What ``evaluate_agent`` returned for the recorded row of ``agent`` on these episodes, if there is one."""
+        config = Run("", "", preset, agent, None, {}, {}, self.quick).config_key(self.eval_episodes)
+        for record in self.records():
+            if (record["method"], record.get("config"), record["eval_layouts"]) == (agent, config, layouts):
+                success = record["success_rate"]
+                return {"avg_sum_reward": record["AER"], "pc_success": None if success is None else 100.0 * success}
+        return None
 
     def references(self, preset: EnvPreset) -> dict[str | None, tuple[float, float]]:
         """Per evaluation layout set: (R_expert, R_random), the mean returns of the built-in expert and of the
