@@ -205,13 +205,20 @@ def test_goal_script_names_a_checkpoint_folder_without_config(tmp_path):
     assert f"--checkpoint={tmp_path} holds no config.json" in result.stderr
 
 
-def test_mode_script_names_a_data_folder_that_is_not_a_dataset(tmp_path):
-    """scripts/measure_mode.py: a --data folder without meta/info.json is named, not a traceback."""
+def test_mode_script_names_a_non_dataset_and_a_checkpoint_without_its_training_state(tmp_path):
+    """scripts/measure_mode.py: a --data folder without meta/info.json, and --weights=latest on a folder without
+    the training state, are named, not a traceback."""
     script = Path(__file__).parent.parent / "scripts" / "measure_mode.py"
     args = [f"--data={tmp_path}", "--checkpoints", str(tmp_path)]
     result = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
     assert result.returncode == 2
     assert f"--data={tmp_path} is not a LeRobot dataset (no meta/info.json)" in result.stderr
+    # the run's last weights need the training state lerobot-train saves beside a checkpoint
+    (tmp_path / "meta").mkdir()
+    (tmp_path / "meta" / "info.json").write_text("{}")
+    latest = subprocess.run([sys.executable, str(script), *args, "--weights", "latest"], capture_output=True, text=True)
+    assert latest.returncode == 2
+    assert f"--weights=latest: {tmp_path} holds no iupe_training_state.pt" in latest.stderr
 
 
 def test_the_cycle_plot_draws_rollout_curves_and_skips_a_selecting_bc_run(tmp_path):
