@@ -224,13 +224,24 @@ LOW_DATA = {
 QUICK_BUDGET = TrainBudget(20, 32, 10, {"rollout_episodes": "4"})
 
 
+def mechanisms_on(method: str) -> str:
+    """The IUPE mechanisms a method runs with: S (sampling), E (exploration), A (attention); ablation variants
+    are named by them, BCO(α) has none, BC is not a cycle."""
+    return {"iupe": "SEA", "bco": "", "bc": ""}.get(method, method)
+
+
+def samples(method: str) -> bool:
+    """Whether the method rebuilds I^s by the sampling rule (its budget then carries the sampling settings)."""
+    return method != "bc" and "S" in mechanisms_on(method)
+
+
 def method_flags(method: str) -> list[str]:
     """lerobot-train flags of a method; ablation variants name the mechanisms that are on."""
     if method == "bc":
         return ["--policy.supervised=true"]
     if method == "iupe":
         return []
-    on = "" if method == "bco" else method
+    on = mechanisms_on(method)
     return [
         f"--policy.sampling={'S' in on}".lower(),
         f"--policy.exploration={'E' in on}".lower(),

@@ -28,7 +28,7 @@ import torch
 from tqdm.auto import tqdm
 
 from lerobot_iupe.benchmark.evaluation import EVAL_SEED, evaluate_agent, evaluate_checkpoint, read_training_run
-from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags
+from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags, samples
 from lerobot_iupe.policy.algorithm import performance
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 
@@ -105,6 +105,23 @@ def collect_datasets(
     return paths
 
 
+def config_key(
+    preset: EnvPreset, quick: bool, train_flags: list[str], eval_episodes: int, plays_selection_episodes: bool
+) -> str:
+    """Hash of everything that determines a run's rows: datasets, training flags, evaluation."""
+    key = [preset.data_key(quick), train_flags, eval_episodes, preset.eval_modes]
+    if preset.rollout_layouts:  # the evaluated layouts depend on it (also for the built-in agents)
+        key.append([preset.scored_episodes(layouts, eval_episodes) for layouts in preset.layouts])
+    if plays_selection_episodes:  # rows selected on the exploring rollouts (older code) are not these
+        key.append("selection on episodes played as lerobot-eval plays")
+    return digest(key)
+
+
+def agent_config_key(preset: EnvPreset, quick: bool, eval_episodes: int) -> str:
+    """``config_key`` of a built-in agent's rows (nothing trained, nothing selected)."""
+    return config_key(preset, quick, [], eval_episodes, plays_selection_episodes=False)
+
+
 @dataclass
 class Run:
     """One cell entry to produce: a method (and training seed) on an env's datasets."""
@@ -120,9 +137,7 @@ class Run:
 
     @property
     def train_flags(self) -> list[str]:
-        method = method_flags(self.method)
-        sampling = self.method != "bc" and "--policy.sampling=false" not in method
-        return [*self.budget.flags(sampling), *method]
+        return [*self.budget.flags(samples(self.method)), *method_flags(self.method)]
 
     @property
     def budget(self):
@@ -130,13 +145,9 @@ class Run:
 
     def config_key(self, eval_episodes: int) -> str:
         """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
-        train = [] if self.method in ("expert", "random") else self.train_flags
-        key = [self.preset.data_key(self.quick), train, eval_episodes, self.preset.eval_modes]
-        if self.preset.rollout_layouts:  # the evaluated layouts depend on it (also for the built-in agents)
-            key.append([self.preset.scored_episodes(layouts, eval_episodes) for layouts in self.preset.layouts])
-        if self.plays_selection_episodes:  # rows selected on the exploring rollouts (older code) are not these
-            key.append("selection on episodes played as lerobot-eval plays")
-        return digest(key)
+        if self.method in ("expert", "random"):
+            return agent_config_key(self.preset, self.quick, eval_episodes)
+        return config_key(self.preset, self.quick, self.train_flags, eval_episodes, self.plays_selection_episodes)
 
     @property
     def plays_selection_episodes(self) -> bool:
@@ -255,7 +266,7 @@ class Benchmark:
 
     def _recorded_agent_evaluation(self, agent: str, preset: EnvPreset, layouts: str | None) -> dict | None:
         """What ``evaluate_agent`` returned for the recorded row of ``agent`` on these episodes, if there is one."""
-        config = Run("", "", preset, agent, None, {}, {}, self.quick).config_key(self.eval_episodes)
+        config = agent_config_key(preset, self.quick, self.eval_episodes)
         for record in self.records():
             if (record["method"], record.get("config"), record["eval_layouts"]) == (agent, config, layouts):
                 success = record["success_rate"]
