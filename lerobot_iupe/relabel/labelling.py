@@ -14,6 +14,10 @@ from tqdm.auto import tqdm
 from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, prefetched, window_indices
 from lerobot_iupe.policy import IUPEPolicy
 
+# Windows per IDM forward pass, whatever --batch_size (the decoding span) is: an image IDM's activations and
+# attention maps for a few dozen windows stay in the CPU's cache; passes of a whole maze episode (133 windows)
+# labelled 1.5× slower (benchmarks/relabel.md).
+IDM_BATCH = 32
 LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
 
 
@@ -49,7 +53,7 @@ def label_spans_with_idm(
             t = np.arange(span.start, span.stop)
             index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
             window = frames.to(device)[torch.as_tensor(index, device=device)]
-            output = policy.idm_window_output(window).float().cpu()
+            output = torch.cat([policy.idm_window_output(part).float().cpu() for part in window.split(IDM_BATCH)])
             generator = generators.setdefault(span.episode, episode_generator(seed, span.episode))
             chosen = head.choose(output, mode == "sample", generator)
             if config.is_continuous:
