@@ -1,6 +1,7 @@
 """The one compatibility check between the things IUPE puts together — an expert dataset, pre-demonstrations, a
-rollout env, a checkpoint: the same observation key and shape (as LeRobot stores it: (D,) or (H, W, C)), fps, env
-type, and action count (discrete) or action dimensions (continuous). Each side is described by a ``DataSpec``; a
+rollout env, a checkpoint: the same observation key and shape (as LeRobot stores it: (D,) or (H, W, C); cameras of
+any height and width, as the policy resizes them, but the same channels), fps, env type, and action count
+(discrete) or action dimensions (continuous). Each side is described by a ``DataSpec``; a
 field one side does not know is not checked."""
 
 from __future__ import annotations
@@ -115,7 +116,14 @@ def check_compatible(expected: DataSpec, actual: DataSpec) -> None:
             f"{actual.source} has '{key}' but {expected.source} has no such observation "
             f"(it has {list(expected.available)})"
         )
-    if expected.observation_shape != actual.observation_shape:
+    mine, theirs = expected.observation_shape, actual.observation_shape
+    if len(mine) == 3 and len(theirs) == 3:  # cameras: any size is read at the working resolution
+        if mine[-1] != theirs[-1]:
+            raise ValueError(
+                f"camera '{key}' has {theirs[-1]} channels in {actual.source} but {mine[-1]} in {expected.source}; "
+                "they must match (any height and width are resized to the policy's --policy.resize_shape)"
+            )
+    elif mine != theirs:
         raise ValueError(
             f"'{key}' has shape {actual.observation_shape} in {actual.source} but {expected.observation_shape} in "
             f"{expected.source}; they must match"

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from lerobot_iupe.data.video import resize_images
+
 
 @dataclass(frozen=True)
 class ObservationLayout:
@@ -52,7 +54,12 @@ class ObservationLayout:
 
     def join(self, parts: list):
         """One observation (numpy arrays or tensors with a leading N axis, one per key, in layout order): see the
-        module docstring. Cameras are uint8 0-255 (datasets, envs) or float 0-1 (LeRobot's preprocessed batches)."""
+        module docstring. Cameras are uint8 0-255 (datasets, envs) or float 0-1 (LeRobot's preprocessed batches);
+        a camera of another height and width than the layout's is resized to it (``data.video.resize_images``)."""
+        parts = [
+            resize_images(part, shape[1:]) if visual else part
+            for part, shape, visual in zip(parts, self.shapes, self.visual, strict=True)
+        ]
         if len(parts) == 1:
             return parts[0]
         if not self.fused:

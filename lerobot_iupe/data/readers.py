@@ -20,6 +20,7 @@ from torch import Tensor
 
 from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.data.transitions import Transitions
+from lerobot_iupe.data.video import CameraFrames, resize_images
 
 
 def column_array(hf_dataset, key: str) -> np.ndarray:
@@ -118,35 +119,110 @@ def label_spans(
 
 class FrameReader:
     """Frames ``lo … hi`` of one episode for a set of observation keys, read from the files as needed (memory
-    follows the span, not the dataset), joined in key order (``ObservationLayout.join``). Vectors and PNG images
-    come from Arrow slices of the parquet files, video by one seek per span."""
+    follows the span, not the dataset), cameras at ``layout``'s working resolution (resized by the video decoder),
+    joined in key order (``ObservationLayout.join``). Vectors and PNG images come from Arrow slices of the parquet
+    files, video by one seek per span and camera."""
 
-    def __init__(self, dataset: LeRobotDataset, keys: list[str], video_backend: str = "pyav"):
-        self.dataset, self.meta, self.keys, self.backend = dataset, dataset.meta, keys, video_backend
-        self.layout = dataset_layout(dataset.meta, keys)
-        self.first_index = int(column_array(dataset.hf_dataset, "index")[0]) if len(dataset.hf_dataset) else 0
+    def __init__(
+        self, dataset: LeRobotDataset, keys: list[str], layout: ObservationLayout, video_backend: str = "pyav"
+    ):
+        self.dataset, self.meta, self.keys, self.layout = dataset, dataset.meta, keys, layout
+        self.episode_frames = EpisodeFrames(dataset, layout_shapes(dataset.meta, keys, layout), video_backend)
 
     def frames(self, episode: int, first: int, lo: int, hi: int) -> Tensor:
-        return self.layout.join([self._read(key, episode, first, lo, hi) for key in self.keys])
+        return self.layout.join(self.parts(episode, lo, hi))
 
-    def _read(self, key: str, episode: int, first: int, lo: int, hi: int) -> Tensor:
-        dtype = self.meta.features[key]["dtype"]
-        if dtype == "video":
-            video = self.meta.root / self.meta.get_video_file_path(episode, key)
-            offset = float(self.meta.episodes[episode][f"videos/{key}/from_timestamp"])
-            timestamps = [offset + (i - first) / self.meta.fps for i in range(lo, hi + 1)]
-            tolerance = 1 / self.meta.fps - 1e-4
-            return decode_video_frames(video, timestamps, tolerance, backend=self.backend, return_uint8=True)
+    def parts(self, episode: int, lo: int, hi: int) -> list[Tensor]:
+        """Each key's frames ``lo … hi``, unjoined (cameras uint8 at the working resolution)."""
+        return [self.episode_frames.read(key, episode, lo, hi) for key in self.keys]
+
+
+def layout_shapes(meta: LeRobotDatasetMetadata, keys: list[str], layout: ObservationLayout) -> dict:
+    """Per camera key, the (h, w) it is read at: the layout's, or None where the dataset already stores that."""
+    shapes = {}
+    for key, shape, visual in zip(keys, layout.shapes, layout.visual, strict=True):
+        if visual:
+            stored = tuple(int(v) for v in meta.features[key]["shape"][:2])
+            shapes[key] = None if stored == tuple(shape[1:]) else tuple(shape[1:])
+    return shapes
+
+
+def open_dataset(repo_id: str, root: str, video_backend: str) -> LeRobotDataset:
+    return LeRobotDataset(repo_id, root=root, video_backend=video_backend)
+
+
+class EpisodeFrames:
+    """A key's frames ``lo … hi`` (global indices) of one episode: cameras uint8 (n, C, h, w) at ``shapes[key]``
+    (None: as stored), vectors float32 (n, D)."""
+
+    def __init__(self, dataset: LeRobotDataset, shapes: dict, video_backend: str):
+        self.dataset, self.shapes, self.backend = dataset, shapes, video_backend
+        self.first_index = int(column_array(dataset.hf_dataset, "index")[0]) if len(dataset.hf_dataset) else 0
+        self.cameras: dict[str, CameraFrames] = {}
+
+    def read(self, key: str, episode: int, lo: int, hi: int) -> Tensor:
+        feature = self.dataset.meta.features[key]
+        shape = self.shapes.get(key)
+        if feature["dtype"] == "video":
+            camera = self.cameras.setdefault(key, CameraFrames(self.dataset.meta, self.backend, shape))
+            return camera.frames(key, episode, lo, hi)
         rows = slice(lo - self.first_index, hi + 1 - self.first_index)
-        if dtype == "image":
+        if feature["dtype"] == "image":
             images = np.asarray(self.dataset.hf_dataset.with_format("numpy")[rows][key])
-            return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2)))
+            images = torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2)))
+            return images if shape is None else resize_images(images, shape)
         column = self.dataset.hf_dataset.data.slice(rows.start, rows.stop - rows.start).column(key).combine_chunks()
         if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
             values = column.flatten().to_numpy(zero_copy_only=False).reshape(len(column), -1)
         else:
             values = column.to_numpy(zero_copy_only=False).reshape(len(column), -1)
         return torch.from_numpy(values.astype(np.float32))
+
+    def episode(self, key: str, episode: int) -> np.ndarray:
+        """All of one episode's frames of ``key``."""
+        first, end = episode_bounds(self.dataset.meta)[episode]
+        return self.read(key, episode, first, end - 1).numpy()
+
+
+class FrameTable:
+    """A dataset's frames of several keys, stored apart and joined on request (``ObservationLayout.join``): cameras
+    uint8 at the working resolution, memory-mapped from the frame cache (``data.frame_cache``), so that memory does
+    not grow with the dataset; vectors float32 in memory. Indexed by dataset row."""
+
+    def __init__(
+        self, dataset: LeRobotDataset, keys: list[str], layout: ObservationLayout, video_backend: str, device=None
+    ):
+        from lerobot_iupe.data.frame_cache import cached_frames
+
+        self.layout, self.device = layout, device
+        hf = dataset.hf_dataset
+        bounds = episode_bounds(dataset.meta)
+        index = column_array(hf, "index").astype(np.int64)
+        self.length = len(index)
+        shapes = layout_shapes(dataset.meta, keys, layout)
+        self.parts, self.positions = [], []
+        for key, visual in zip(keys, layout.visual, strict=True):
+            if visual:
+                self.parts.append(cached_frames(dataset, key, shapes[key], video_backend))
+                self.positions.append(index - (bounds[0][0] if bounds else 0))
+            else:
+                self.parts.append(column_array(hf, key).astype(np.float32).reshape(self.length, -1))
+                self.positions.append(None)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, rows) -> Tensor:
+        """The joined frames of ``rows`` (any shape of row numbers), shaped ``rows.shape + frame``."""
+        rows = np.asarray(rows.cpu() if torch.is_tensor(rows) else rows, dtype=np.int64)
+        flat = rows.reshape(-1)
+        parts = [
+            torch.from_numpy(np.ascontiguousarray(part[flat if where is None else where[flat]]))
+            for part, where in zip(self.parts, self.positions, strict=True)
+        ]
+        joined = torch.as_tensor(self.layout.join(parts))
+        joined = joined.reshape(*rows.shape, *joined.shape[1:])
+        return joined if self.device is None else joined.to(self.device)
 
 
 def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
@@ -171,17 +247,16 @@ def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
         yield item
 
 
-def observation_array(dataset: LeRobotDataset, keys: str | list[str], video_backend: str = "pyav") -> np.ndarray:
-    """Every frame's observation in dataset order: float32 states, or uint8 (N, C, H, W) images; several keys are
-    joined in key order (``ObservationLayout.join``)."""
-    if not isinstance(keys, str):
-        parts = [observation_array(dataset, k, video_backend) for k in keys]
-        return dataset_layout(dataset.meta, keys).join(parts)
-    key = keys
-    if dataset.meta.features[key]["dtype"] == "video":
-        chunks = video_chunks(dataset.meta, key, 1024, video_backend)
-        return np.concatenate([c.frames[: len(c.frames) - 1 + c.ends_episode].numpy() for c in chunks])
-    return stored_frames(dataset, key)
+def observation_array(
+    dataset: LeRobotDataset, keys: str | list[str], video_backend: str = "pyav", layout: ObservationLayout | None = None
+) -> np.ndarray:
+    """Every frame's observation in dataset order, held in memory: float32 states, or uint8 (N, C, H, W) images;
+    several keys are joined in key order (``ObservationLayout.join``). Cameras are read at ``layout``'s working
+    resolution (default: as stored) through the frame cache."""
+    keys = [keys] if isinstance(keys, str) else list(keys)
+    layout = layout or dataset_layout(dataset.meta, keys)
+    table = FrameTable(dataset, keys, layout, video_backend)
+    return table[np.arange(len(table))].numpy()
 
 
 def action_array(dataset: LeRobotDataset) -> np.ndarray:
@@ -192,11 +267,17 @@ def action_array(dataset: LeRobotDataset) -> np.ndarray:
     return actions.reshape(len(actions), -1).astype(np.float32)
 
 
-def load_transitions(dataset: LeRobotDataset, keys: str | list[str], video_backend: str = "pyav") -> Transitions:
-    """All (s_t, a_t, s_{t+1}) of a dataset with actions; images kept as uint8 (N, C, H, W)."""
+def load_transitions(
+    dataset: LeRobotDataset,
+    keys: str | list[str],
+    video_backend: str = "pyav",
+    layout: ObservationLayout | None = None,
+) -> Transitions:
+    """All (s_t, a_t, s_{t+1}) of a dataset with actions, in memory; images kept as uint8 (N, C, H, W), cameras
+    at ``layout``'s working resolution (default: as stored)."""
     episodes = column_array(dataset.hf_dataset, "episode_index")
     actions = action_array(dataset)
-    states = observation_array(dataset, keys, video_backend)
+    states = observation_array(dataset, keys, video_backend, layout)
     has_next = np.flatnonzero(episodes[:-1] == episodes[1:])
     return Transitions(states[has_next], actions[has_next], states[has_next + 1])
 
@@ -209,11 +290,20 @@ def window_indices(t: np.ndarray, offsets: list[int], first: np.ndarray, last: n
 
 
 class ExpertFrames:
-    """The expert dataset in memory, so that a training batch needs only its frames' ``index`` from LeRobot's
-    loader: with ``delta_timestamps`` for s_{t+1} its per-item cost is 12× higher (1.04 vs 0.08 ms measured on a
-    vector dataset) and that loading was 70–85% of a vector training run."""
+    """The expert dataset at hand (``FrameTable``: vectors in memory, cameras memory-mapped at the working
+    resolution), so that a training batch needs only its frames' ``index`` from LeRobot's loader: with
+    ``delta_timestamps`` for s_{t+1} its per-item cost is 12× higher (1.04 vs 0.08 ms measured on a vector dataset)
+    and that loading was 70–85% of a vector training run."""
 
-    def __init__(self, dataset: LeRobotDataset, keys: list[str], with_actions: bool, device: torch.device):
+    def __init__(
+        self,
+        dataset: LeRobotDataset,
+        keys: str | list[str],
+        with_actions: bool,
+        device: torch.device,
+        layout: ObservationLayout | None = None,
+        video_backend: str = "pyav",
+    ):
         index = column_array(dataset.hf_dataset, "index").astype(np.int64)
         self.row_of_index = np.full(int(index.max()) + 1, -1, dtype=np.int64)
         self.row_of_index[index] = np.arange(len(index))
@@ -222,7 +312,8 @@ class ExpertFrames:
         ends = np.r_[starts[1:], len(self.episodes)] - 1
         lengths = ends - starts + 1
         self.first_row, self.last_row = np.repeat(starts, lengths), np.repeat(ends, lengths)
-        self.states = torch.as_tensor(observation_array(dataset, keys), device=device)
+        keys = [keys] if isinstance(keys, str) else list(keys)
+        self.states = FrameTable(dataset, keys, layout or dataset_layout(dataset.meta, keys), video_backend, device)
         self.actions = torch.as_tensor(action_array(dataset), device=device) if with_actions else None
 
     def rows(self, frame_index: Tensor) -> np.ndarray:
@@ -236,8 +327,7 @@ class ExpertFrames:
 
     def windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """Frames (B, len(offsets), …) at ``offsets`` around each row, clamped into its episode."""
-        index = window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])
-        return self.states[torch.as_tensor(index, device=self.states.device)]
+        return self.states[window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])]
 
     def pairs(self, rows: np.ndarray) -> tuple[Tensor, Tensor]:
         """(s_t, s_{t+1}) of these rows; LeRobot's sampler never draws an episode's last frame

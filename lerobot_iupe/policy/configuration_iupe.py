@@ -12,6 +12,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.data.storage import read_iupe_meta
+from lerobot_iupe.data.video import working_shape
 from lerobot_iupe.envs.configs import (
     IUPEEnvConfig,
     action_names,
@@ -23,6 +24,8 @@ from lerobot_iupe.policy.train_run import lerobot_train_config
 
 EVAL_MODES = ("argmax", "sample")
 IMAGE_BACKBONES = ("cnn", "resnet18")
+# The default working resolution's longer side (--policy.resize_shape): see benchmarks/relabel.md.
+DEFAULT_LONGEST_SIDE = 128
 # Measured with scripts/measure_context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
 # agreement 0.977 → 0.993 and LunarLander's R² 0.853 → 0.882 (by effect 0.851 → 0.885); it cost Acrobot
 # 0.998 → 0.996 and SO-101's R² 0.981 → 0.973 and left CartPole at 1.000. k = 2 was no better on average.
@@ -115,6 +118,13 @@ class IUPEConfig(PreTrainedConfig):
     hidden_dim: int = 64
     token_dim: int = 16
     cnn_width: int = 16
+    # Every camera is resized to [height, width] before the encoders — in training, the IUPE cycle's rollouts,
+    # select_action (lerobot-eval) and relabelling — so that a dataset or env of another camera size is read at the
+    # size the checkpoint learned (LeRobot's name, as in its Diffusion policy). None = cameras as they are when none
+    # is over 128 px on its longer side, else the largest one scaled to 128 px on its longer side, aspect ratio
+    # kept (640×480 → [96, 128]; benchmarks/relabel.md measures the choice). Resolved when the policy is built, so
+    # config.json records what ran.
+    resize_shape: list[int] | None = None
     # Image encoder: "cnn" (compact residual CNN, CPU-sized at 64 px) or "resnet18" (torchvision, for GPU runs).
     image_backbone: str = "cnn"
     # CPU threads for torch while training (set when training starts, not when a policy is built, so evaluation
@@ -183,6 +193,11 @@ class IUPEConfig(PreTrainedConfig):
                 f"--policy.binary_action_dims must list distinct action dimensions (0, 1, …), got "
                 f"{self.binary_action_dims}"
             )
+        if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) < 8):
+            raise ValueError(
+                f"--policy.resize_shape must be [height, width] of at least 8 pixels each (e.g. [96,128] for "
+                f"640×480 cameras), got {self.resize_shape}"
+            )
         if self.image_backbone not in IMAGE_BACKBONES:
             raise ValueError(
                 f"--policy.image_backbone must be one of {list(IMAGE_BACKBONES)}, got {self.image_backbone!r}"
@@ -232,8 +247,16 @@ class IUPEConfig(PreTrainedConfig):
         return self.observation_keys[0]
 
     def layout_of(self, keys: list[str]) -> ObservationLayout:
-        """How these observation keys are joined into one array per frame (``data.observation``)."""
-        return ObservationLayout(tuple(tuple(self.input_features[k].shape) for k in keys))
+        """How these observation keys are joined into one array per frame (``data.observation``); cameras at the
+        working resolution (``resize_shape``)."""
+        return ObservationLayout(tuple(self.working_shape(k) for k in keys))
+
+    def working_shape(self, key: str) -> tuple[int, ...]:
+        """The shape the networks see of ``key``: a camera (C, *resize_shape), a vector as it is."""
+        feature = self.input_features[key]
+        if feature.type is FeatureType.VISUAL and self.resize_shape:
+            return (int(feature.shape[0]), *(int(v) for v in self.resize_shape))
+        return tuple(feature.shape)
 
     @property
     def layout(self) -> ObservationLayout:
@@ -300,8 +323,12 @@ class IUPEConfig(PreTrainedConfig):
                     f"observation keys {self.observation_keys}"
                 )
         cameras = [k for k in self.observation_keys if k in images]
-        if self.shared_camera_encoder and len({tuple(features[k].shape) for k in cameras}) > 1:
-            shapes = {k: tuple(features[k].shape) for k in cameras}
+        if self.resize_shape is None and cameras:
+            largest = max((tuple(features[k].shape[1:]) for k in cameras), key=lambda hw: hw[0] * hw[1])
+            if max(largest) > DEFAULT_LONGEST_SIDE:
+                self.resize_shape = list(working_shape(*largest, DEFAULT_LONGEST_SIDE))
+        if self.shared_camera_encoder and len({self.working_shape(k) for k in cameras}) > 1:
+            shapes = {k: self.working_shape(k) for k in cameras}
             raise ValueError(
                 f"--policy.shared_camera_encoder=true needs cameras of one size; they are {shapes} "
                 "(pass --policy.shared_camera_encoder=false for one encoder per camera)"

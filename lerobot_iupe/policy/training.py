@@ -32,6 +32,7 @@ from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
 from lerobot_iupe.data.readers import ExpertFrames, load_transitions
 from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
 from lerobot_iupe.data.transitions import Transitions
+from lerobot_iupe.data.video import default_video_backend
 from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys, make_envs
 from lerobot_iupe.envs.rollout import run_episodes
 from lerobot_iupe.policy.algorithm import (
@@ -143,7 +144,7 @@ class IUPETrainer:
         pre_dataset = self.check_inputs()
         self.set_threads()
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
-        pre = load_transitions(pre_dataset, cfg.observation_keys)
+        pre = load_transitions(pre_dataset, cfg.observation_keys, "pyav", cfg.layout)
         if cfg.is_continuous:  # fitted again identically on resume (own seed)
             self.cells = ActionCells.fit(pre.actions, cfg.action_cells, cfg.action_low, cfg.action_high, self.seed)
         # Its own stream, so that a resumed run holds out the same transitions without saving them.
@@ -220,8 +221,11 @@ class IUPETrainer:
                 self.set_threads()
             meta = self.dataset_meta
             dataset = LeRobotDataset(meta.repo_id, root=meta.root, video_backend="pyav")
-            self._expert = ExpertFrames(dataset, self.config.observation_keys, self.config.supervised, self.device)
-            log.info(f"IUPE: expert dataset in memory, {len(self._expert.episodes)} frames")
+            cfg = self.config
+            self._expert = ExpertFrames(
+                dataset, cfg.observation_keys, cfg.supervised, self.device, cfg.layout, default_video_backend()
+            )
+            log.info(f"IUPE: expert dataset ready, {len(self._expert.episodes)} frames")
         return self._expert
 
     # ------------------------------------------------------------ 2. every step

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import logging
 import time
 from pathlib import Path
 
@@ -12,7 +11,6 @@ import torch
 import torch.distributed as dist
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION
-from lerobot.utils.import_utils import get_safe_default_video_backend
 
 from lerobot_iupe.data.readers import FrameReader, action_array, episode_bounds, label_spans
 from lerobot_iupe.data.storage import (
@@ -24,6 +22,7 @@ from lerobot_iupe.data.storage import (
     staged_directory,
     write_iupe_meta,
 )
+from lerobot_iupe.data.video import default_video_backend
 from lerobot_iupe.policy.algorithm import r_squared
 from lerobot_iupe.relabel.checks import (
     check_has_episodes,
@@ -41,17 +40,6 @@ from lerobot_iupe.relabel.labelling import (
     process_group,
 )
 from lerobot_iupe.relabel.writing import action_feature, copy_dataset, pull_dataset, write_labels
-
-
-def default_video_backend() -> str:
-    """LeRobot's rule (torchcodec where it loads, else pyav), minus its page-long traceback when it does not."""
-    logger = logging.getLogger("lerobot.utils.import_utils")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        return get_safe_default_video_backend()
-    finally:
-        logger.setLevel(level)
 
 
 def relabel(cfg: RelabelConfig) -> RelabelReport:
@@ -90,7 +78,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     start = time.perf_counter()
     bounds = episode_bounds(meta)
     spans = label_spans(bounds, cfg.batch_size, config.idm_window, list(range(rank, len(bounds), world)))
-    reader = FrameReader(dataset, keys, backend)
+    reader = FrameReader(dataset, keys, config.layout_of(keys), backend)
     per_episode = label_spans_with_idm(policy, reader, spans, cfg.mode, cfg.seed, device, progress=rank == 0)
     per_episode = gather_on_first(per_episode, world)
     if world > 1:  # no collective after this; a group left alive aborts the process at exit (gloo's threads)

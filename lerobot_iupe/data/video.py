@@ -1,0 +1,135 @@
+"""Camera frames at the policy's working resolution: one resize rule (bilinear, antialiased) for frames already in
+memory (``resize_images``), and the same rule applied inside the video decoder for frames read from a dataset
+(``CameraFrames``), so that a 640×480 frame is never held, converted or copied at full size.
+
+torchcodec resizes with FFmpeg's filter graph (its ``Resize`` transform: bilinear, antialiased, within 0.02 levels
+of ``resize_images`` on average); PyAV with FFmpeg's scaler while it converts to RGB (``frame.reformat``, within 1.3
+levels). Decoding a 640×480 camera to 96×128 costs what decoding it at full size does (benchmarks/relabel.md);
+resizing a decoded 480×640 frame with torch costs about as much again.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+from torch import Tensor
+
+
+def resize_images(images, shape: tuple[int, int] | list[int]):
+    """Images (N, C, H, W) — uint8 0–255 or float 0–1, numpy or torch — at (h, w) = ``shape``, same type and dtype;
+    unchanged when they already have it."""
+    h, w = int(shape[0]), int(shape[1])
+    if tuple(images.shape[-2:]) == (h, w):
+        return images
+    as_numpy = isinstance(images, np.ndarray)
+    tensor = torch.from_numpy(images) if as_numpy else images
+    resized = F.interpolate(tensor.float(), size=(h, w), mode="bilinear", antialias=True, align_corners=False)
+    if tensor.dtype == torch.uint8:
+        resized = resized.round_().clamp_(0, 255).to(torch.uint8)
+    else:
+        resized = resized.to(tensor.dtype)
+    return resized.numpy() if as_numpy else resized
+
+
+def working_shape(height: int, width: int, longest_side: int) -> tuple[int, int]:
+    """(h, w) with the aspect ratio of (height, width) and the longer side at most ``longest_side``."""
+    scale = min(1.0, longest_side / max(height, width))
+    return max(1, round(height * scale)), max(1, round(width * scale))
+
+
+def default_video_backend() -> str:
+    """LeRobot's rule (torchcodec where it loads, else pyav), minus its page-long traceback when it does not."""
+    from lerobot.utils.import_utils import get_safe_default_video_backend
+
+    logger = logging.getLogger("lerobot.utils.import_utils")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        return get_safe_default_video_backend()
+    finally:
+        logger.setLevel(level)
+
+
+class CameraFrames:
+    """Frame ranges of one episode of a dataset's video cameras, decoded at ``shape`` (h, w) (None: as stored), as
+    uint8 (n, C, h, w). Open decoders are kept per file (an episode is a stretch of a file shared with others), so
+    that consecutive ranges do not reopen it. Meant for one thread or process at a time."""
+
+    OPEN_FILES = 4
+
+    def __init__(self, meta, backend: str, shape: tuple[int, int] | None):
+        self.meta, self.backend = meta, backend
+        self.shape = None if shape is None else (int(shape[0]), int(shape[1]))
+        self._decoders: OrderedDict[Path, object] = OrderedDict()
+
+    def frames(self, key: str, episode: int, lo: int, hi: int) -> Tensor:
+        """Frames ``lo … hi`` (global indices, inclusive) of ``episode``'s video of camera ``key``."""
+        meta = self.meta
+        first = int(meta.episodes[episode]["dataset_from_index"])
+        offset = float(meta.episodes[episode][f"videos/{key}/from_timestamp"])
+        path = meta.root / meta.get_video_file_path(episode, key)
+        start_s = offset + (lo - first) / meta.fps
+        count = hi - lo + 1
+        if self.backend == "torchcodec":
+            frames = self._torchcodec(path, start_s, count)
+        else:
+            frames = self._pyav(path, start_s, count)
+        if len(frames) != count:
+            raise RuntimeError(
+                f"{path}: expected {count} frames from {start_s:.3f} s (episode {episode}, frames {lo}…{hi}) but the "
+                f"video holds {len(frames)} there; the dataset's episode timestamps and its video disagree"
+            )
+        return frames
+
+    def _decoder(self, path: Path, make):
+        decoder = self._decoders.pop(path, None) or make()
+        self._decoders[path] = decoder
+        while len(self._decoders) > self.OPEN_FILES:
+            _, old = self._decoders.popitem(last=False)
+            if hasattr(old, "close"):
+                old.close()
+        return decoder
+
+    def _torchcodec(self, path: Path, start_s: float, count: int) -> Tensor:
+        from torchcodec.decoders import VideoDecoder
+        from torchcodec.transforms import Resize
+
+        transforms = [Resize(self.shape)] if self.shape else None
+        decoder = self._decoder(path, lambda: VideoDecoder(str(path), transforms=transforms, num_ffmpeg_threads=1))
+        first = round(start_s * decoder.metadata.average_fps)
+        last = min(first + count, decoder.metadata.num_frames)
+        return decoder.get_frames_in_range(first, last).data
+
+    def _pyav(self, path: Path, start_s: float, count: int) -> Tensor:
+        import av
+
+        def open_file():
+            container = av.open(str(path))
+            container.streams.video[0].thread_type = "NONE"  # one core per decoding process: scale out with processes
+            return container
+
+        container = self._decoder(path, open_file)
+        stream = container.streams.video[0]
+        tolerance = 0.5 / self.meta.fps
+        container.seek(max(0, int((start_s - tolerance) / stream.time_base)), stream=stream, backward=True)
+        frames = []
+        for frame in container.decode(stream):
+            if frame.time is None or frame.time < start_s - tolerance:
+                continue
+            if self.shape:
+                frame = frame.reformat(
+                    width=self.shape[1], height=self.shape[0], format="rgb24", interpolation="BILINEAR"
+                )
+                frames.append(frame.to_ndarray())
+            else:
+                frames.append(frame.to_ndarray(format="rgb24"))
+            if len(frames) == count:
+                break
+        if not frames:
+            return torch.empty(0, 3, *(self.shape or (0, 0)), dtype=torch.uint8)
+        return torch.from_numpy(np.stack(frames)).permute(0, 3, 1, 2).contiguous()
