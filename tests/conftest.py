@@ -5,6 +5,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -20,6 +21,8 @@ from filelock import FileLock  # noqa: E402
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("HF_HUB_OFFLINE", "0")
+# The frame cache of this test session (data.frame_cache), not the user's.
+os.environ.setdefault("LEROBOT_IUPE_CACHE", tempfile.mkdtemp(prefix="lerobot-iupe-frames-"))
 
 BIN = Path(sys.executable).parent
 

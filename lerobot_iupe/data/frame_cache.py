@@ -22,6 +22,8 @@ import numpy as np
 from lerobot.utils.constants import HF_LEROBOT_HOME
 from tqdm.auto import tqdm
 
+from lerobot_iupe.data.episodes import EpisodeFrames, open_dataset
+
 log = logging.getLogger("lerobot_iupe")
 
 # Below this many frames a cache is decoded in the calling process: starting worker processes costs more.
@@ -61,8 +63,6 @@ _readers: dict = {}  # a worker process's open dataset, by (root, key, shape, ba
 def _episode_frames(task: tuple) -> tuple[int, np.ndarray]:
     """One episode's frames (T, C, h, w) uint8 in a worker process."""
     root, repo_id, key, episode, shape, backend = task
-    from lerobot_iupe.data.readers import EpisodeFrames, open_dataset
-
     reader = _readers.get((root, key, shape, backend))
     if reader is None:
         reader = _readers[(root, key, shape, backend)] = EpisodeFrames(
@@ -99,8 +99,6 @@ def cached_frames(
     try:
         with tqdm(total=total, desc=f"caching {key}", unit="frame", disable=not progress) as bar:
             if workers <= 1 or total < IN_PROCESS_FRAMES:
-                from lerobot_iupe.data.readers import EpisodeFrames
-
                 reader = EpisodeFrames(dataset, {key: shape}, backend)
                 results = ((e, reader.episode(key, e)) for e in range(len(bounds)))
                 pool = None

@@ -1,6 +1,7 @@
-"""Reading LeRobot datasets fast: whole columns from Arrow, video decoded in streaming chunks (one seek per chunk)
-instead of LeRobot's per-item access, which seeks and decodes for every frame; the transitions of a dataset with
-actions, and the expert dataset held in memory for training."""
+"""Reading LeRobot datasets fast: whole columns from Arrow, video decoded in spans (one seek per span and camera)
+at the policy's working resolution instead of LeRobot's per-item access, which seeks and decodes every frame at
+full size; the transitions of a dataset with actions, and the expert dataset at hand for training (cameras from
+the frame cache)."""
 
 from __future__ import annotations
 
@@ -10,60 +11,22 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-import pyarrow as pa
 import torch
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
-from lerobot.datasets.video_utils import decode_video_frames
 from lerobot.utils.constants import ACTION
 from lerobot.utils.feature_utils import dataset_to_policy_features
 from torch import Tensor
 
+from lerobot_iupe.data.episodes import EpisodeFrames, column_array, episode_bounds, layout_shapes
+from lerobot_iupe.data.frame_cache import cached_frames
 from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.data.transitions import Transitions
-from lerobot_iupe.data.video import CameraFrames, resize_images
-
-
-def column_array(hf_dataset, key: str) -> np.ndarray:
-    """One column of a LeRobot dataset as a numpy array (N,) or (N, D), read from its Arrow table directly
-    (``hf_dataset.with_format("numpy")[key]`` converts row by row: 6 s instead of 1 ms for 50k CartPole rows)."""
-    if hf_dataset._indices is not None:  # a selection of rows: let datasets resolve it
-        return np.asarray(hf_dataset.with_format("numpy")[key])
-    column = hf_dataset.data.column(key).combine_chunks()
-    if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
-        return column.flatten().to_numpy(zero_copy_only=False).reshape(len(column), -1)
-    return column.to_numpy(zero_copy_only=False)
-
-
-@dataclass
-class Chunk:
-    """Frames ``start … start + len(frames) - 1`` (global dataset indices) of one episode; the last frame of the
-    chunk is only the successor of the one before it unless it ends the episode."""
-
-    start: int
-    frames: torch.Tensor
-    ends_episode: bool
 
 
 def dataset_layout(meta: LeRobotDatasetMetadata, keys: list[str]) -> ObservationLayout:
     """The layout of these keys as a policy sees them (cameras (C, H, W), by LeRobot's own conversion)."""
     features = dataset_to_policy_features({k: meta.features[k] for k in keys})
     return ObservationLayout(tuple(tuple(features[k].shape) for k in keys))
-
-
-def episode_bounds(meta: LeRobotDatasetMetadata) -> list[tuple[int, int]]:
-    episodes = meta.episodes
-    return [(int(a), int(b)) for a, b in zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True)]
-
-
-def chunk_spans(first: int, last: int, batch_size: int) -> Iterator[tuple[int, int]]:
-    """Inclusive spans of ``batch_size + 1`` frames that overlap by one frame, covering ``first … last``."""
-    start = first
-    while True:
-        stop = min(start + batch_size, last)
-        yield start, stop
-        if stop == last:
-            return
-        start = stop
 
 
 def stored_frames(dataset: LeRobotDataset, key: str) -> np.ndarray:
@@ -73,18 +36,6 @@ def stored_frames(dataset: LeRobotDataset, key: str) -> np.ndarray:
         images = np.asarray(dataset.hf_dataset.with_format("numpy")[key][:])
         return np.ascontiguousarray(images.transpose(0, 3, 1, 2))
     return column_array(dataset.hf_dataset, key).astype(np.float32)
-
-
-def video_chunks(meta: LeRobotDatasetMetadata, key: str, batch_size: int, backend: str) -> Iterator[Chunk]:
-    """Decode each episode's frames in chunks of ``batch_size + 1`` frames (uint8, C×H×W), one seek per chunk."""
-    tolerance = 1 / meta.fps - 1e-4
-    for episode, (first, end) in enumerate(episode_bounds(meta)):
-        video = meta.root / meta.get_video_file_path(episode, key)
-        offset = float(meta.episodes[episode][f"videos/{key}/from_timestamp"])
-        for start, stop in chunk_spans(first, end - 1, batch_size):
-            timestamps = [offset + (i - first) / meta.fps for i in range(start, stop + 1)]
-            frames = decode_video_frames(video, timestamps, tolerance, backend=backend, return_uint8=True)
-            yield Chunk(start, frames, stop == end - 1)
 
 
 @dataclass(frozen=True)
@@ -137,53 +88,6 @@ class FrameReader:
         return [self.episode_frames.read(key, episode, lo, hi) for key in self.keys]
 
 
-def layout_shapes(meta: LeRobotDatasetMetadata, keys: list[str], layout: ObservationLayout) -> dict:
-    """Per camera key, the (h, w) it is read at: the layout's, or None where the dataset already stores that."""
-    shapes = {}
-    for key, shape, visual in zip(keys, layout.shapes, layout.visual, strict=True):
-        if visual:
-            stored = tuple(int(v) for v in meta.features[key]["shape"][:2])
-            shapes[key] = None if stored == tuple(shape[1:]) else tuple(shape[1:])
-    return shapes
-
-
-def open_dataset(repo_id: str, root: str, video_backend: str) -> LeRobotDataset:
-    return LeRobotDataset(repo_id, root=root, video_backend=video_backend)
-
-
-class EpisodeFrames:
-    """A key's frames ``lo … hi`` (global indices) of one episode: cameras uint8 (n, C, h, w) at ``shapes[key]``
-    (None: as stored), vectors float32 (n, D)."""
-
-    def __init__(self, dataset: LeRobotDataset, shapes: dict, video_backend: str):
-        self.dataset, self.shapes, self.backend = dataset, shapes, video_backend
-        self.first_index = int(column_array(dataset.hf_dataset, "index")[0]) if len(dataset.hf_dataset) else 0
-        self.cameras: dict[str, CameraFrames] = {}
-
-    def read(self, key: str, episode: int, lo: int, hi: int) -> Tensor:
-        feature = self.dataset.meta.features[key]
-        shape = self.shapes.get(key)
-        if feature["dtype"] == "video":
-            camera = self.cameras.setdefault(key, CameraFrames(self.dataset.meta, self.backend, shape))
-            return camera.frames(key, episode, lo, hi)
-        rows = slice(lo - self.first_index, hi + 1 - self.first_index)
-        if feature["dtype"] == "image":
-            images = np.asarray(self.dataset.hf_dataset.with_format("numpy")[rows][key])
-            images = torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2)))
-            return images if shape is None else resize_images(images, shape)
-        column = self.dataset.hf_dataset.data.slice(rows.start, rows.stop - rows.start).column(key).combine_chunks()
-        if pa.types.is_list(column.type) or pa.types.is_fixed_size_list(column.type):
-            values = column.flatten().to_numpy(zero_copy_only=False).reshape(len(column), -1)
-        else:
-            values = column.to_numpy(zero_copy_only=False).reshape(len(column), -1)
-        return torch.from_numpy(values.astype(np.float32))
-
-    def episode(self, key: str, episode: int) -> np.ndarray:
-        """All of one episode's frames of ``key``."""
-        first, end = episode_bounds(self.dataset.meta)[episode]
-        return self.read(key, episode, first, end - 1).numpy()
-
-
 class FrameTable:
     """A dataset's frames of several keys, stored apart and joined on request (``ObservationLayout.join``): cameras
     uint8 at the working resolution, memory-mapped from the frame cache (``data.frame_cache``), so that memory does
@@ -192,8 +96,6 @@ class FrameTable:
     def __init__(
         self, dataset: LeRobotDataset, keys: list[str], layout: ObservationLayout, video_backend: str, device=None
     ):
-        from lerobot_iupe.data.frame_cache import cached_frames
-
         self.layout, self.device = layout, device
         hf = dataset.hf_dataset
         bounds = episode_bounds(dataset.meta)
@@ -225,7 +127,7 @@ class FrameTable:
         return joined if self.device is None else joined.to(self.device)
 
 
-def prefetched(chunks: Iterator[Chunk], depth: int = 2) -> Iterator[Chunk]:
+def prefetched(chunks: Iterator, depth: int = 2) -> Iterator:
     """Run ``chunks`` in a background thread so decoding the next chunk overlaps labelling this one
     (by hand: torch's DataLoader would need a Dataset of chunks and worker processes for what one thread does)."""
     buffer: queue.Queue = queue.Queue(maxsize=depth)

@@ -124,7 +124,7 @@ def exchange_paths(a: Path, b: Path) -> bool:
     raise OSError(error, f"cannot swap {a} and {b}: {os.strerror(error)}")
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -141,7 +141,7 @@ def recover_interrupted_swap(final: Path) -> None:
     for kind in ("old", "partial"):
         for path in final.parent.glob(f".{final.name}.{kind}-*"):
             pid = path.name.rsplit(f".{kind}-", 1)[1].split("-")[0]
-            if pid.isdigit() and not _pid_alive(int(pid)):
+            if pid.isdigit() and not pid_alive(int(pid)):
                 leftovers.append((kind, path))
     for kind, path in sorted(leftovers, key=lambda item: item[0] != "old"):
         if kind == "old" and not final.exists():

@@ -86,6 +86,8 @@ class RelabelReport:
     # or R² (continuous).
     agreement_with_existing: float | None
     seconds: float
+    # Continuous: R² of each action dimension against the existing actions (None without them).
+    agreement_per_dimension: list[float] | None = None
     processes: int = 1
     written: bool = False
     # Under torchrun only process 0 gathers, writes and reports; the others return a report with this False.
@@ -116,4 +118,7 @@ class RelabelReport:
         ]
         if self.agreement_with_existing is not None:
             lines.append(f"  {agreement} the dataset's existing actions: {self.agreement_with_existing:.4f}")
+        if self.agreement_per_dimension:
+            per = zip(self.action_names, self.agreement_per_dimension, strict=True)
+            lines.append("  R² per dimension: " + ", ".join(f"{n}={v:.4f}" for n, v in per))
         return "\n".join(lines)

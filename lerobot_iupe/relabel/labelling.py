@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
+import traceback
 
 import numpy as np
 import torch
@@ -11,6 +13,7 @@ import torch.distributed as dist
 from lerobot.datasets import LeRobotDatasetMetadata
 from tqdm.auto import tqdm
 
+from lerobot_iupe.data.episodes import open_dataset
 from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, prefetched, window_indices
 from lerobot_iupe.policy import IUPEPolicy
 
@@ -19,6 +22,46 @@ from lerobot_iupe.policy import IUPEPolicy
 # labelled 1.5× slower (benchmarks/relabel.md).
 IDM_BATCH = 32
 LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
+
+
+# From this many frames on, spans are decoded in a process of their own (one core decodes while another labels);
+# below it a thread does, sparing the ~4 s a new process spends importing torch and LeRobot.
+DECODER_PROCESS_FRAMES = 2_000
+
+
+def _decode_spans(repo_id: str, root: str, keys: list[str], layout, backend: str, spans: list, out) -> None:
+    """The decoding process: every span's frames (unjoined, as numpy arrays) into ``out``, then None."""
+    torch.set_num_threads(1)
+    try:
+        reader = FrameReader(open_dataset(repo_id, root, backend), keys, layout, backend)
+        for span in spans:
+            out.put((span, [p.numpy() for p in reader.parts(span.episode, span.lo, span.hi)]))
+        out.put(None)
+    except BaseException:
+        out.put(traceback.format_exc())
+
+
+def decoded_ahead(reader: FrameReader, spans: list[LabelSpan], in_process: bool, depth: int = 4):
+    """(span, parts) for every span in order, decoded ahead of the caller: in a thread, or in a process of its own
+    (``torch.multiprocessing``'s spawn, so that the two run on two cores whatever holds the GIL)."""
+    if in_process:
+        yield from prefetched(((span, reader.parts(span.episode, span.lo, span.hi)) for span in spans), depth)
+        return
+    context = mp.get_context("spawn")
+    queue = context.Queue(maxsize=depth)
+    meta = reader.meta
+    args = (meta.repo_id, str(meta.root), reader.keys, reader.layout, reader.episode_frames.backend, spans, queue)
+    process = context.Process(target=_decode_spans, args=args, daemon=True)
+    process.start()
+    try:
+        while (item := queue.get()) is not None:
+            if isinstance(item, str):
+                raise RuntimeError(f"decoding the dataset's frames failed:\n{item}")
+            span, parts = item
+            yield span, [torch.from_numpy(p) for p in parts]
+    finally:
+        process.kill()
+        process.join()
 
 
 def episode_generator(seed: int, episode: int) -> torch.Generator:
@@ -43,13 +86,10 @@ def label_spans_with_idm(
     results: dict[int, tuple[list, list]] = {}
     generators: dict[int, torch.Generator] = {}
 
-    def read(span_list):
-        for span in span_list:
-            yield span, reader.frames(span.episode, span.first, span.lo, span.hi)
-
     total = sum(span.stop - span.start for span in spans)
     with tqdm(total=total, desc="relabel", unit="frame", unit_scale=True, disable=not progress) as bar:
-        for span, frames in prefetched(read(spans)):
+        for span, parts in decoded_ahead(reader, spans, in_process=total < DECODER_PROCESS_FRAMES):
+            frames = reader.layout.join(parts)
             t = np.arange(span.start, span.stop)
             index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
             window = frames.to(device)[torch.as_tensor(index, device=device)]

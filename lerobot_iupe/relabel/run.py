@@ -86,17 +86,20 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     seconds = time.perf_counter() - start
     if per_episode is None:  # not the first process: process 0 writes
         return RelabelReport(
-            root, str(cfg.policy.path), cfg.mode, 0, 0, [], [], 0.0, None, seconds, world, False, False
-        )
+            root, str(cfg.policy.path), cfg.mode, 0, 0, [], [], 0.0, None, seconds,
+            processes=world, written=False, first_process=False,
+        )  # fmt: skip
     labels, confidence = assemble_labels(per_episode, bounds, config)
     total = len(labels)
 
-    agreement = None
+    agreement, per_dimension = None, None
     inner = ~last_frame_mask(meta, total)
     if ACTION in meta.features:
         existing = action_array(dataset)
         if config.is_continuous:
-            agreement = r_squared(labels[inner], existing.reshape(labels.shape)[inner])
+            true = existing.reshape(labels.shape)[inner]
+            agreement = r_squared(labels[inner], true)
+            per_dimension = [r_squared(labels[inner][:, d], true[:, d]) for d in range(labels.shape[1])]
         else:
             agreement = float((existing.reshape(total)[inner] == labels[inner]).mean())
     if config.is_continuous:
@@ -114,6 +117,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
         mean_confidence=float(confidence[inner].mean()) if inner.any() else 0.0,
         agreement_with_existing=agreement,
         seconds=seconds,
+        agreement_per_dimension=per_dimension,
         processes=world,
         continuous=config.is_continuous,
     )

@@ -1,0 +1,187 @@
+"""Real camera data: two 480×640 cameras written by LeRobot's own writer, trained on and relabelled under a memory
+cap; checkpoints that meet cameras of another size; the frame cache."""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import BIN, CHECKPOINT, once, run_cli
+from lerobot.datasets import LeRobotDataset
+
+from lerobot_iupe.data.arm_recording import CAMERAS, write_arm_recording
+from lerobot_iupe.data.episodes import EpisodeFrames
+from lerobot_iupe.data.frame_cache import cache_dir, cached_frames
+from lerobot_iupe.data.video import CameraFrames, resize_images
+from lerobot_iupe.policy import IUPEPolicy
+from lerobot_iupe.policy.networks import SpatialSelfAttention
+
+# Address space for one training or relabelling process. Importing torch (a CUDA build) and LeRobot alone maps
+# about 6 GB; the code before working resolutions needed 1.5 GB per 480×640 image for the attention of its first
+# stage (19,200 positions), 12 GB for a batch of 8, and was killed on 40 frames.
+MEMORY_CAP = 10 * 1024**3
+
+
+def capped(*command: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (MEMORY_CAP, MEMORY_CAP))
+
+    return subprocess.run(
+        command, capture_output=True, text=True, env={**os.environ, **(env or {})}, preexec_fn=limit, timeout=600
+    )
+
+
+def arm(data_dir: Path, name: str, **kwargs) -> Path:
+    root = data_dir / name
+    return once(root, lambda: write_arm_recording(root, repo_id=f"local/{name}", **kwargs), "meta/info.json")
+
+
+@pytest.fixture(scope="session")
+def arm_labelled(data_dir) -> Path:
+    """Three episodes of an SO-101-shaped recording: two 480×640 cameras, joint state, joint targets."""
+    return arm(data_dir, "arm-480", episodes=3, frames_per_episode=24)
+
+
+@pytest.fixture(scope="session")
+def arm_run(arm_labelled, shared_dir) -> Path:
+    """A supervised IDM trained on it with default flags, under the memory cap; its output directory."""
+    out = shared_dir / "runs" / "arm"
+
+    def train() -> None:
+        result = capped(
+            str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
+            f"--dataset.repo_id=local/{arm_labelled.name}", f"--dataset.root={arm_labelled}",
+            "--dataset.video_backend=pyav", "--batch_size=8", "--steps=6", "--save_freq=6", "--num_workers=0",
+            "--policy.device=cpu", "--wandb.enable=false", f"--output_dir={out}",
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr[-3000:]
+
+    return once(out, train, CHECKPOINT)
+
+
+def test_a_supervised_idm_trains_on_two_480x640_cameras_under_the_memory_cap(arm_run):
+    config = json.loads((arm_run / CHECKPOINT / "config.json").read_text())
+    assert config["resize_shape"] == [96, 128]  # the default working resolution, recorded
+    assert config["input_features"][CAMERAS[0]]["shape"] == [3, 480, 640]
+    policy = IUPEPolicy.from_pretrained(arm_run / CHECKPOINT)
+    assert policy.layout.shapes[0] == (3, 96, 128)
+
+
+def test_a_480x640_video_dataset_is_relabelled_under_the_memory_cap(arm_run, data_dir):
+    root = arm(data_dir, "arm-480-state-only", episodes=3, frames_per_episode=24, with_actions=False)
+    result = capped(
+        str(BIN / "lerobot-iupe-relabel"), f"--policy.path={arm_run / CHECKPOINT}", "--dataset.repo_id=local/x",
+        f"--dataset.root={root}", "--dataset.video_backend=pyav", "--dry_run=true",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "72 frames of 3 episodes labelled" in result.stdout
+
+
+def test_relabelling_labels_what_the_policy_sees_of_lerobots_own_frames(arm_run, arm_labelled, tmp_path):
+    """The labels written equal the IDM's outputs on frames decoded by LeRobot's own reader and resized by the
+    policy's rule: the decoder-side resize feeds the IDM what lerobot-eval would."""
+    root = tmp_path / "copy"
+    write_arm_recording(root, 2, 12, repo_id="local/copy", with_actions=False, seed=7)
+    run_cli("lerobot-iupe-relabel", f"--policy.path={arm_run / CHECKPOINT}", "--dataset.repo_id=local/copy",
+            f"--dataset.root={root}", "--dataset.video_backend=pyav")  # fmt: skip
+    labelled = LeRobotDataset("local/copy", root=root, video_backend="pyav")
+    policy = IUPEPolicy.from_pretrained(arm_run / CHECKPOINT).eval()
+    items = [labelled[i] for i in range(12)]
+    frames = policy.layout.join([torch.stack([item[k] for item in items]) for k in policy.config.observation_keys])
+    offsets = policy.config.idm_window
+    t = np.arange(11)
+    window = frames[torch.as_tensor(np.clip(t[:, None] + np.array(offsets)[None, :], 0, 11))]
+    with torch.no_grad():
+        expected = policy.idm_head.mode(policy.idm_window_output(window)).numpy()
+    written = torch.stack([item["action"] for item in items[:11]]).numpy()
+    scale = np.asarray(policy.config.action_high) - np.asarray(policy.config.action_low)
+    assert np.abs(written - expected).max(axis=0).max() / scale.max() < 0.02  # PyAV's scaler vs torch's: ~1 level
+
+
+def test_a_checkpoint_relabels_cameras_of_another_size_as_it_sees_its_own(arm_run, data_dir):
+    """The same recording at 240×320 is read at the checkpoint's 96×128: its labels match the 480×640 ones."""
+    big = arm(data_dir, "arm-480-state-only", episodes=3, frames_per_episode=24, with_actions=False)
+    small = arm(data_dir, "arm-240-state-only", episodes=3, frames_per_episode=24, with_actions=False,
+                height=240, width=320)  # fmt: skip
+    policy = IUPEPolicy.from_pretrained(arm_run / CHECKPOINT).eval()
+    outputs = []
+    for root in (big, small):
+        dataset = LeRobotDataset("local/x", root=root, video_backend="pyav")
+        reader = EpisodeFrames(dataset, {k: (96, 128) for k in CAMERAS}, "pyav")
+        parts = [reader.read(k, 0, 0, 23) for k in policy.config.observation_keys]
+        frames = policy.layout.join(parts)
+        window = torch.stack([frames[:-2], frames[1:-1], frames[2:], frames[2:]], dim=1)
+        with torch.no_grad():
+            outputs.append(policy.idm_window_output(window)[:, : policy.config.action_dim].numpy())
+    spread = outputs[0].std(axis=0).mean()
+    assert np.abs(outputs[0] - outputs[1]).mean() < 0.1 * spread
+
+
+def test_select_action_resizes_an_env_camera_of_another_size(maze_run):
+    """A 64×64 maze checkpoint acts on a 96×96 observation as on that observation resized to 64×64."""
+    policy = IUPEPolicy.from_pretrained(maze_run / CHECKPOINT).eval()
+    image = torch.rand(3, 3, 96, 96)
+    policy.reset()
+    big = policy.select_action({"observation.image": image})
+    policy.reset()
+    small = policy.select_action({"observation.image": resize_images(image, (64, 64))})
+    assert torch.equal(big, small)
+
+
+def test_lerobot_eval_plays_a_maze_rendered_at_another_size(maze_run, tmp_path):
+    from conftest import evaluate
+
+    overall = evaluate(maze_run / CHECKPOINT, tmp_path / "eval", "--env.type=maze", "--env.size=3",
+                       "--env.image_size=96", episodes=2)  # fmt: skip
+    assert overall["n_episodes"] == 2
+
+
+def test_the_frame_cache_is_reused_and_rebuilt_when_the_dataset_changes(data_dir, tmp_path, monkeypatch):
+    monkeypatch.setenv("LEROBOT_IUPE_CACHE", str(tmp_path / "cache"))
+    root = tmp_path / "arm"
+    write_arm_recording(root, 2, 10, repo_id="local/arm", seed=3)
+    dataset = LeRobotDataset("local/arm", root=root, video_backend="pyav")
+    key = CAMERAS[0]
+    frames = cached_frames(dataset, key, (96, 128), "pyav", progress=False)
+    decoded = torch.cat([CameraFrames(dataset.meta, "pyav", (96, 128)).frames(key, e, 10 * e, 10 * e + 9)
+                         for e in range(2)])  # fmt: skip
+    assert frames.shape == (20, 3, 96, 128) and np.array_equal(frames, decoded.numpy())
+    (built,) = cache_dir().glob("*.npy")
+    stamp = built.stat().st_mtime_ns
+
+    again = cached_frames(LeRobotDataset("local/arm", root=root, video_backend="pyav"), key, (96, 128), "pyav")
+    assert list(cache_dir().glob("*.npy")) == [built] and built.stat().st_mtime_ns == stamp
+    assert np.array_equal(again, frames)
+
+    other = tmp_path / "other"  # the same path recorded again with other motions: the dataset changed
+    write_arm_recording(other, 2, 10, repo_id="local/arm", seed=4)
+    for path in root.iterdir():
+        subprocess.run(["rm", "-rf", str(path)], check=True)
+    for path in other.iterdir():
+        path.rename(root / path.name)
+    changed = LeRobotDataset("local/arm", root=root, video_backend="pyav")
+    rebuilt = cached_frames(changed, key, (96, 128), "pyav", progress=False)
+    assert len(list(cache_dir().glob("*.npy"))) == 2
+    fresh = CameraFrames(changed.meta, "pyav", (96, 128)).frames(key, 0, 0, 9).numpy()
+    assert np.array_equal(rebuilt[:10], fresh) and not np.array_equal(rebuilt, frames)
+
+
+def test_attention_is_the_full_sagan_product_on_small_maps_and_bounded_on_large_ones():
+    torch.manual_seed(0)
+    attention = SpatialSelfAttention(16)
+    attention.gamma.data.fill_(0.7)
+    x = torch.randn(2, 16, 16, 16)
+    q, k = attention.query(x).flatten(2).transpose(1, 2), attention.key(x).flatten(2)
+    full = x + attention.gamma * (attention.value(x).flatten(2) @ torch.softmax(q @ k, -1).transpose(1, 2)).view(
+        x.shape
+    )
+    assert torch.allclose(attention(x), full, atol=1e-6)
+    assert SpatialSelfAttention.key_grid(24, 32) == (13, 18)  # 234 of 768 positions
+    assert SpatialSelfAttention.key_grid(120, 160) == (13, 18)
+    assert attention(torch.randn(1, 16, 120, 160)).shape == (1, 16, 120, 160)
