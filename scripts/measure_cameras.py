@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import resource
 import shlex
 import subprocess
 import sys
@@ -68,13 +67,14 @@ def memory_of(pid: int) -> tuple[int, int]:
 
 def measured(*command: str, env: dict | None = None) -> dict:
     """Run ``command``; its output, wall time, the largest resident set of any of its processes (the kernel's
-    high-water mark, as ``/usr/bin/time -v`` reports) and, sampled every 0.2 s, the largest anonymous part."""
+    high-water mark, by ``/usr/bin/time``) and, sampled every 0.2 s, the largest anonymous part (what a process
+    allocated itself, without the file pages of the memory-mapped frame cache)."""
     print("$", shlex.join(command), flush=True)
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     start = time.perf_counter()
     process = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, **(env or {})}
-    )
+        ["/usr/bin/time", "-f", "MAXRSS_KB %M", *command],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env={**os.environ, **(env or {})},
+    )  # fmt: skip
     peak_anon = [0]
 
     def sample() -> None:
@@ -91,11 +91,10 @@ def measured(*command: str, env: dict | None = None) -> dict:
     if process.returncode:
         print(output[-4000:])
         raise SystemExit(f"{command[0]} failed ({process.returncode})")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     return {
         "output": output,
         "seconds": seconds,
-        "peak_rss_gb": (peak if peak > before else float("nan")) / 1024**2,
+        "peak_rss_gb": int(re.findall(r"MAXRSS_KB (\d+)", output)[-1]) / 1024**2,
         "peak_anon_gb": peak_anon[0] / 1024**2,
     }
 

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# The GPU check of real camera data (benchmarks/relabel.md, "Real camera data"): on a machine with torch and a GPU
+# but no package index, with the wheels of ../shared/device/wheels.sh in .whl/. Writes an SO-101-shaped recording
+# (two 640×480 AV1 cameras, LeRobot's writer), trains a supervised IDM at the default working resolution with
+# --policy.device="$DEVICE", scores it on held-out episodes and relabels with the IDM on the GPU, against a plain
+# one-thread PyAV decode of the same videos. Logs go to $OUT (default outputs/device-check).
+#   bash scripts/device_check.sh [frames] [steps]
+set -euo pipefail
+FRAMES=${1:-2000}
+STEPS=${2:-1000}
+DEVICE=${DEVICE:-cuda}
+OUT=${OUT:-outputs/device-check}
+WORK=${WORK:-/tmp/device-check}
+mkdir -p "$OUT" "$WORK"
+if ! python3 -c "import lerobot" 2>/dev/null; then
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl
+  export PYTHONPATH=/tmp/site PATH=/tmp/site/bin:$PATH
+fi
+export HF_LEROBOT_HOME=$WORK/home LEROBOT_IUPE_CACHE=$WORK/frame-cache
+(nvidia-smi -L || true) | tee "$OUT/device.txt"
+python3 - "$WORK" "$FRAMES" <<'PY' 2>&1 | tail -3 | tee "$OUT/write.txt"
+import sys, time
+from lerobot_iupe.data.arm_recording import write_arm_recording
+work, frames = sys.argv[1], int(sys.argv[2])
+start = time.perf_counter()
+write_arm_recording(f"{work}/arm", frames // 250, 250, repo_id="local/arm")
+write_arm_recording(f"{work}/held", 4, 250, seed=1_000_000, repo_id="local/held")
+print(f"wrote {frames} + 1000 frames in {time.perf_counter() - start:.0f} s")
+PY
+timed() { python3 - "$@" <<'PY'
+import resource, subprocess, sys, time
+start = time.perf_counter()
+code = subprocess.run(sys.argv[1:]).returncode
+peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024**2
+print(f"[{sys.argv[1].rsplit('/', 1)[-1]}: exit {code}, {time.perf_counter() - start:.1f} s, peak RSS {peak:.2f} GB]")
+sys.exit(code)
+PY
+}
+timed "$(command -v lerobot-train)" --policy.type=iupe --policy.supervised=true --dataset.repo_id=local/arm \
+  --dataset.root="$WORK/arm" --dataset.video_backend=pyav --output_dir="$WORK/idm" --steps="$STEPS" \
+  --save_freq="$STEPS" --log_freq=100 --policy.device="$DEVICE" --wandb.enable=false 2>&1 \
+  | grep -E "step:|exit|caching|Error|error" | tail -8 | tee "$OUT/train.txt"
+CKPT=$WORK/idm/checkpoints/last/pretrained_model
+timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/held \
+  --dataset.root="$WORK/held" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "relabel:" | tee "$OUT/held_out.txt"
+timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/arm \
+  --dataset.root="$WORK/arm" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "relabel:" | tee "$OUT/relabel.txt"
+python3 - "$WORK/arm" <<'PY' | tee "$OUT/decode.txt"
+import sys, time, av
+from pathlib import Path
+files = sorted((Path(sys.argv[1]) / "videos").rglob("*.mp4"))
+start, frames = time.perf_counter(), 0
+for path in files:
+    container = av.open(str(path))
+    stream = container.streams.video[0]
+    stream.thread_type = "NONE"
+    for frame in container.decode(stream):
+        frame.to_ndarray(format="rgb24")
+        frames += 1
+cameras = len({p.parent.parent.name for p in files})
+print(f"plain PyAV decode, one thread: {frames / cameras / (time.perf_counter() - start):.0f} dataset frames/s ({cameras} cameras)")
+PY
