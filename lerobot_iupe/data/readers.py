@@ -5,9 +5,6 @@ the frame cache)."""
 
 from __future__ import annotations
 
-import queue
-import threading
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,28 +122,6 @@ class FrameTable:
         joined = torch.as_tensor(self.layout.join(parts))
         joined = joined.reshape(*rows.shape, *joined.shape[1:])
         return joined if self.device is None else joined.to(self.device)
-
-
-def prefetched(chunks: Iterator, depth: int = 2) -> Iterator:
-    """Run ``chunks`` in a background thread so decoding the next chunk overlaps labelling this one
-    (by hand: torch's DataLoader would need a Dataset of chunks and worker processes for what one thread does)."""
-    buffer: queue.Queue = queue.Queue(maxsize=depth)
-    done = object()
-
-    def produce() -> None:
-        try:
-            for chunk in chunks:
-                buffer.put(chunk)
-        except BaseException as error:  # handed to the consumer, which re-raises it
-            buffer.put(error)
-            return
-        buffer.put(done)
-
-    threading.Thread(target=produce, daemon=True).start()
-    while (item := buffer.get()) is not done:
-        if isinstance(item, BaseException):
-            raise item
-        yield item
 
 
 def observation_array(

@@ -13,8 +13,7 @@ import torch.distributed as dist
 from lerobot.datasets import LeRobotDatasetMetadata
 from tqdm.auto import tqdm
 
-from lerobot_iupe.data.episodes import open_dataset
-from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, prefetched, window_indices
+from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, window_indices
 from lerobot_iupe.policy import IUPEPolicy
 
 # Windows per IDM forward pass, whatever --batch_size (the decoding span) is: an image IDM's activations and
@@ -24,16 +23,10 @@ IDM_BATCH = 32
 LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
 
 
-# From this many frames on, spans are decoded in a process of their own (one core decodes while another labels);
-# below it a thread does, sparing the ~4 s a new process spends importing torch and LeRobot.
-DECODER_PROCESS_FRAMES = 2_000
-
-
-def _decode_spans(repo_id: str, root: str, keys: list[str], layout, backend: str, spans: list, out) -> None:
+def _decode_spans(reader: FrameReader, spans: list, out) -> None:
     """The decoding process: every span's frames (unjoined, as numpy arrays) into ``out``, then None."""
-    torch.set_num_threads(1)
+    torch.set_num_threads(1)  # decoding needs no intra-op threads (and a forked child must not start a pool)
     try:
-        reader = FrameReader(open_dataset(repo_id, root, backend), keys, layout, backend)
         for span in spans:
             out.put((span, [p.numpy() for p in reader.parts(span.episode, span.lo, span.hi)]))
         out.put(None)
@@ -41,17 +34,13 @@ def _decode_spans(repo_id: str, root: str, keys: list[str], layout, backend: str
         out.put(traceback.format_exc())
 
 
-def decoded_ahead(reader: FrameReader, spans: list[LabelSpan], in_process: bool, depth: int = 4):
-    """(span, parts) for every span in order, decoded ahead of the caller: in a thread, or in a process of its own
-    (``torch.multiprocessing``'s spawn, so that the two run on two cores whatever holds the GIL)."""
-    if in_process:
-        yield from prefetched(((span, reader.parts(span.episode, span.lo, span.hi)) for span in spans), depth)
-        return
-    context = mp.get_context("spawn")
+def decoded_ahead(reader: FrameReader, spans: list[LabelSpan], depth: int = 4):
+    """(span, parts) for every span in order, decoded ahead of the caller in a process of its own, so that one core
+    decodes while another labels whatever holds the GIL. Forked where the OS can (Linux; as torch's DataLoader
+    forks its workers): a spawned process would spend ~4 s importing torch and LeRobot first."""
+    context = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     queue = context.Queue(maxsize=depth)
-    meta = reader.meta
-    args = (meta.repo_id, str(meta.root), reader.keys, reader.layout, reader.episode_frames.backend, spans, queue)
-    process = context.Process(target=_decode_spans, args=args, daemon=True)
+    process = context.Process(target=_decode_spans, args=(reader, spans, queue), daemon=True)
     process.start()
     try:
         while (item := queue.get()) is not None:
@@ -88,7 +77,7 @@ def label_spans_with_idm(
 
     total = sum(span.stop - span.start for span in spans)
     with tqdm(total=total, desc="relabel", unit="frame", unit_scale=True, disable=not progress) as bar:
-        for span, parts in decoded_ahead(reader, spans, in_process=total < DECODER_PROCESS_FRAMES):
+        for span, parts in decoded_ahead(reader, spans):
             frames = reader.layout.join(parts)
             t = np.arange(span.start, span.stop)
             index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
