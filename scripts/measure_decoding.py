@@ -2,7 +2,7 @@
 
     python scripts/measure_decoding.py [--episodes 50] [--image_size 64] [--repeats 3]
 Collects a Maze 5×5 expert dataset stored as MP4 (outputs/measure-decoding/, once), then decodes every frame in
-the chunks the relabeller and the policy read (``data.readers.video_chunks``), alternating the two backends.
+the spans the relabeller and the frame cache read (``data.video.CameraFrames``), alternating the two backends.
 """
 
 import argparse
@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets import LeRobotDatasetMetadata
 
-from lerobot_iupe.data.readers import video_chunks
+from lerobot_iupe.data.episodes import episode_spans
+from lerobot_iupe.data.video import CameraFrames
 
 
 def main() -> None:
@@ -37,7 +38,9 @@ def main() -> None:
     for _ in range(args.repeats):
         for backend in rates:
             start = time.perf_counter()
-            frames = sum(len(c.frames) for c in video_chunks(meta, "observation.image", args.batch_size, backend))
+            reader = CameraFrames(meta, backend, None)
+            spans = episode_spans(meta, args.batch_size)
+            frames = sum(len(reader.frames("observation.image", e, lo, hi)) for e, lo, hi in spans)
             rates[backend].append(frames / (time.perf_counter() - start))
     print(f"{meta.total_frames} frames of {args.image_size}×{args.image_size} video, {args.repeats} repeats:")
     for backend, values in rates.items():

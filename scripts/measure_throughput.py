@@ -20,7 +20,8 @@ from pathlib import Path
 
 from lerobot.datasets import LeRobotDatasetMetadata
 
-from lerobot_iupe.data.readers import video_chunks
+from lerobot_iupe.data.episodes import episode_spans
+from lerobot_iupe.data.video import CameraFrames
 
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import BIN, render, run, update  # noqa: E402
@@ -60,7 +61,8 @@ def decode_rate(meta: LeRobotDatasetMetadata, batch_size: int) -> float:
     """Frames/s of decoding the dataset's camera alone, in the chunks the relabeller reads."""
     (camera,) = meta.video_keys
     start = time.perf_counter()
-    frames = sum(len(c.frames) - 1 + c.ends_episode for c in video_chunks(meta, camera, batch_size, "pyav"))
+    reader = CameraFrames(meta, "pyav", None)
+    frames = sum(len(reader.frames(camera, e, lo, hi)) for e, lo, hi in episode_spans(meta, batch_size))
     return frames / (time.perf_counter() - start)
 
 

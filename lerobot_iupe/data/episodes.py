@@ -29,6 +29,14 @@ def episode_bounds(meta: LeRobotDatasetMetadata) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True)]
 
 
+def episode_spans(meta: LeRobotDatasetMetadata, batch_size: int):
+    """(episode, lo, hi): every frame of the dataset in inclusive spans of at most ``batch_size`` frames, one
+    episode at a time."""
+    for episode, (first, end) in enumerate(episode_bounds(meta)):
+        for lo in range(first, end, batch_size):
+            yield episode, lo, min(lo + batch_size, end) - 1
+
+
 def layout_shapes(meta: LeRobotDatasetMetadata, keys: list[str], layout: ObservationLayout) -> dict:
     """Per camera key, the (h, w) it is read at: the layout's, or None where the dataset already stores that."""
     shapes = {}
