@@ -2,13 +2,14 @@
 # The GPU check of real camera data (benchmarks/relabel.md, "Real camera data"): on a machine with torch and a GPU
 # but no package index, with the wheels of ../shared/device/wheels.sh in .whl/. Writes an SO-101-shaped recording
 # (two 640×480 AV1 cameras, LeRobot's writer), trains a supervised IDM at the default working resolution with
-# --policy.device="$DEVICE", scores it on held-out episodes and relabels with the IDM on the GPU, against a plain
+# --policy.device=cuda, scores it on held-out episodes and relabels with the IDM on the GPU, against a plain
 # one-thread PyAV decode of the same videos. Logs go to $OUT (default outputs/device-check).
-#   bash scripts/device_check.sh [frames] [steps]
+#   bash scripts/device_check.sh [frames] [steps]     (DEVICE=cpu HELD=1 for a dry run on a CPU machine)
 set -euo pipefail
 FRAMES=${1:-2000}
 STEPS=${2:-1000}
 DEVICE=${DEVICE:-cuda}
+HELD=${HELD:-4}
 OUT=${OUT:-outputs/device-check}
 WORK=${WORK:-/tmp/device-check}
 mkdir -p "$OUT" "$WORK"
@@ -18,14 +19,14 @@ if ! python3 -c "import lerobot" 2>/dev/null; then
 fi
 export HF_LEROBOT_HOME=$WORK/home LEROBOT_IUPE_CACHE=$WORK/frame-cache
 (nvidia-smi -L || true) | tee "$OUT/device.txt"
-python3 - "$WORK" "$FRAMES" <<'PY' 2>&1 | tail -3 | tee "$OUT/write.txt"
+python3 - "$WORK" "$FRAMES" "$HELD" <<'PY' 2>&1 | tail -3 | tee "$OUT/write.txt"
 import sys, time
 from lerobot_iupe.data.arm_recording import write_arm_recording
-work, frames = sys.argv[1], int(sys.argv[2])
+work, frames, held = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 start = time.perf_counter()
 write_arm_recording(f"{work}/arm", frames // 250, 250, repo_id="local/arm")
-write_arm_recording(f"{work}/held", 4, 250, seed=1_000_000, repo_id="local/held")
-print(f"wrote {frames} + 1000 frames in {time.perf_counter() - start:.0f} s")
+write_arm_recording(f"{work}/held", held, 250, seed=1_000_000, repo_id="local/held")
+print(f"wrote {frames} + {held * 250} frames in {time.perf_counter() - start:.0f} s")
 PY
 timed() { python3 - "$@" <<'PY'
 import resource, subprocess, sys, time

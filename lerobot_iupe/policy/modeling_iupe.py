@@ -79,6 +79,8 @@ class IUPEPolicy(PreTrainedPolicy):
                 self.state_mean[layout.columns(i)] = torch.as_tensor(mean)
                 self.state_std[layout.columns(i)] = torch.as_tensor(std).clamp_min(1e-3)
         self.layout = layout  # read on every select_action and rollout step
+        vector_columns = layout.indices(i for i, visual in enumerate(layout.visual) if not visual)
+        self.register_buffer("vector_columns", torch.as_tensor(vector_columns, dtype=torch.long), persistent=False)
         self.dataset_meta = dataset_meta
         self._history: Tensor | None = None  # select_action's last n_obs_steps observations (B, n, …)
         self.averaged: dict[str, Tensor] | None = None  # the policy model's weight average (config.ema_decay)
@@ -91,9 +93,16 @@ class IUPEPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------ the two models
 
     def _prepare(self, obs: Tensor) -> Tensor:
+        """Frames (…, frame) as the encoders take them: a lone camera in [0, 1], vectors normalised by the dataset's
+        stats; a fused frame's camera values, already in [0, 1], are left as they are (their stats are 0 and 1)."""
         if self.config.is_image and not self.layout.fused:
             return obs.float() / 255.0 if obs.dtype == torch.uint8 else obs.float()
-        return (obs.float() - self.state_mean) / self.state_std
+        if not self.layout.fused:
+            return (obs.float() - self.state_mean) / self.state_std
+        columns = self.vector_columns.to(obs.device)
+        prepared = obs.float().clone()
+        prepared[..., columns] = (prepared[..., columns] - self.state_mean[columns]) / self.state_std[columns]
+        return prepared
 
     def idm_output(self, state: Tensor, next_state: Tensor) -> Tensor:
         """The IDM head's distribution parameters (logits) for a → (s_t, s_{t+1}) (an IDM without context)."""
@@ -110,11 +119,27 @@ class IUPEPolicy(PreTrainedPolicy):
         # steps than from separately encoded frames (0.995 vs 0.71 accuracy on expert moves in a reference
         # measurement). For k = 0 this is [s_t, s_{t+1} - s_t].
         k = self.config.idm_context or 0
-        frames = [self._prepare(window[:, j]) for j in range(window.shape[1])]
+        if self.layout.fused and self.idm_columns is None:
+            return self.idm_head(self.idm_encoder(self._fused_differences(window, k).flatten(1, 2)))
+        frames = self._prepare(window)
         if self.idm_columns is not None:  # --policy.idm_observation_keys: the IDM reads some keys only
-            frames = [f[:, self.idm_columns.to(f.device)] for f in frames]
-        s = frames[k]
-        return self.idm_head(self.idm_encoder(torch.cat([s] + [f - s for j, f in enumerate(frames) if j != k], dim=1)))
+            frames = frames[:, :, self.idm_columns.to(frames.device)]
+        s = frames[:, k : k + 1]
+        differences = torch.cat([frames[:, :k], frames[:, k + 1 :]], dim=1) - s
+        return self.idm_head(self.idm_encoder(torch.cat([s, differences], dim=1).flatten(1, 2)))
+
+    def _fused_differences(self, window: Tensor, k: int) -> Tensor:
+        """[s_t, s_j - s_t …] (B, F, size) of fused frames, written once into one tensor: the same values as the
+        general path (a difference's vector part is divided by the std; the means cancel), without its four passes
+        over the frames, which took over 40% of an image IDM's forward pass at 96×128."""
+        window = window.float()
+        out = torch.empty_like(window)
+        out[:, 0] = self._prepare(window[:, k])
+        torch.sub(window[:, :k], window[:, k : k + 1], out=out[:, 1 : k + 1])
+        torch.sub(window[:, k + 1 :], window[:, k : k + 1], out=out[:, k + 1 :])
+        columns = self.vector_columns.to(window.device)
+        out[:, 1:, columns] /= self.state_std[columns]
+        return out
 
     def pm_output(self, state: Tensor) -> Tensor:
         """The policy head's distribution parameters (logits) for a → s_t (a policy of the current state only)."""

@@ -81,8 +81,9 @@ def label_spans_with_idm(
             frames = reader.layout.join(parts)
             t = np.arange(span.start, span.stop)
             index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
-            window = frames.to(device)[torch.as_tensor(index, device=device)]
-            output = torch.cat([policy.idm_window_output(part).float().cpu() for part in window.split(IDM_BATCH)])
+            frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
+            passes = torch.as_tensor(index, device=device).split(IDM_BATCH)
+            output = torch.cat([policy.idm_window_output(frames[part]).float().cpu() for part in passes])
             generator = generators.setdefault(span.episode, episode_generator(seed, span.episode))
             chosen = head.choose(output, mode == "sample", generator)
             if config.is_continuous:
