@@ -46,18 +46,4 @@ timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device
   --dataset.root="$WORK/held" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "relabel:" | tee "$OUT/held_out.txt"
 timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/arm \
   --dataset.root="$WORK/arm" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "relabel:" | tee "$OUT/relabel.txt"
-python3 - "$WORK/arm" <<'PY' | tee "$OUT/decode.txt"
-import sys, time, av
-from pathlib import Path
-files = sorted((Path(sys.argv[1]) / "videos").rglob("*.mp4"))
-start, frames = time.perf_counter(), 0
-for path in files:
-    container = av.open(str(path))
-    stream = container.streams.video[0]
-    stream.thread_type = "NONE"
-    for frame in container.decode(stream):
-        frame.to_ndarray(format="rgb24")
-        frames += 1
-cameras = len({p.parent.parent.name for p in files})
-print(f"plain PyAV decode, one thread: {frames / cameras / (time.perf_counter() - start):.0f} dataset frames/s ({cameras} cameras)")
-PY
+python3 scripts/measure_cameras.py --decode "$WORK/arm" --backend pyav | tee "$OUT/decode.txt"

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_iupe.data.arm_recording import CAMERAS, write_arm_recording
+from lerobot_iupe.data.arm_recording import write_arm_recording
 
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import BIN, update  # noqa: E402
@@ -107,30 +107,37 @@ def recording(work: Path, name: str, episodes: int, seed: int) -> Path:
     return root
 
 
+def plain_decode_rate(root: Path, backend: str) -> float:
+    """Dataset frames/s of decoding every camera's videos whole at full size, in this process, one thread."""
+    import av
+    import torch
+
+    torch.set_num_threads(1)
+    files = sorted((root / "videos").rglob("*.mp4"))
+    cameras = len({path.relative_to(root / "videos").parts[0] for path in files})
+    start, frames = time.perf_counter(), 0
+    for path in files:
+        if backend == "torchcodec":
+            from torchcodec.decoders import VideoDecoder
+
+            decoder = VideoDecoder(str(path), num_ffmpeg_threads=1)
+            total = decoder.metadata.num_frames
+            for first in range(0, total, 256):
+                frames += len(decoder.get_frames_in_range(first, min(first + 256, total)).data)
+        else:
+            container = av.open(str(path))
+            stream = container.streams.video[0]
+            stream.thread_type = "NONE"
+            for frame in container.decode(stream):
+                frame.to_ndarray(format="rgb24")
+                frames += 1
+    return frames / cameras / (time.perf_counter() - start)
+
+
 def decode_rate(root: Path, backend: str) -> float:
-    """Dataset frames/s of decoding both cameras' videos whole at full size, one process, one thread."""
-    code = f"""
-import time, torch, av
-from pathlib import Path
-torch.set_num_threads(1)
-files = sorted(p for k in {list(CAMERAS)!r} for p in (Path({str(root)!r}) / "videos" / k).rglob("*.mp4"))
-start, frames = time.perf_counter(), 0
-for path in files:
-    if {backend!r} == "torchcodec":
-        from torchcodec.decoders import VideoDecoder
-        decoder = VideoDecoder(str(path), num_ffmpeg_threads=1)
-        for first in range(0, decoder.metadata.num_frames, 256):
-            frames += len(decoder.get_frames_in_range(first, min(first + 256, decoder.metadata.num_frames)).data)
-    else:
-        container = av.open(str(path))
-        stream = container.streams.video[0]
-        stream.thread_type = "NONE"
-        for frame in container.decode(stream):
-            frame.to_ndarray(format="rgb24")
-            frames += 1
-print(frames / len({list(CAMERAS)!r}) / (time.perf_counter() - start))
-"""
-    return float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
+    """``plain_decode_rate`` in a fresh process (no decoder state or threads of this one)."""
+    command = [sys.executable, __file__, "--decode", str(root), "--backend", backend]
+    return float(subprocess.run(command, capture_output=True, text=True, check=True).stdout.split()[-1])
 
 
 def main() -> None:
@@ -139,7 +146,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=2000, help="training steps of each IDM")
     parser.add_argument("--work", type=Path, default=Path("outputs/measure-cameras"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks"))
+    parser.add_argument("--decode", type=Path, help="only print the plain decode rate of this dataset's videos")
+    parser.add_argument("--backend", default="torchcodec", help="the decoder of --decode: torchcodec or pyav")
     args = parser.parse_args()
+    if args.decode:
+        print(f"plain {args.backend} decode, one thread: {plain_decode_rate(args.decode, args.backend):.1f}")
+        return
     command = "python scripts/measure_cameras.py " + " ".join(sys.argv[1:])
     # Its own frame cache, so that each size's first training run builds it (and is measured doing so).
     env = {"LEROBOT_IUPE_CACHE": str(args.work / "frame-cache")}
