@@ -1,0 +1,130 @@
+"""The commands printed in README.md and docs/ against the real CLIs: every flag of every command block is one its
+command knows (a renamed flag fails here), and README's three workflows run as printed."""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import BIN
+from hub_server import LocalHub
+from test_hub import hub_env
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PROGRAMS = {"lerobot-train", "lerobot-eval", "torchrun"} | {p.name for p in BIN.glob("lerobot-iupe-*")}
+# Flags LeRobot's own parser takes before draccus sees the rest (lerobot/configs/parser.py), so --help lists none.
+PARSER_FLAGS = {"--policy.path", "--config_path"}
+SELECTORS = ("--policy.type", "--env.type")
+
+
+def bash_blocks(text: str) -> list[str]:
+    return re.findall(r"```bash\n(.*?)```", text, flags=re.S)
+
+
+def commands(block: str) -> list[list[str]]:
+    """Each command of a block: continuation lines joined, comments dropped, split as the shell would."""
+    joined = re.sub(r"\\\n\s*", " ", block)
+    found = []
+    for line in joined.splitlines():
+        line = re.sub(r"(^|\s)#\s.*$", "", line).strip()
+        if line:
+            found.append(shlex.split(line.replace("$(which ", "").replace(")", " ")))
+    return found
+
+
+def program_of(words: list[str]) -> list[str] | None:
+    """The program a command runs (``python scripts/x.py`` as two words), or None for one this test does not know."""
+    for i, word in enumerate(words):
+        name = Path(word).name
+        if name in PROGRAMS - {"torchrun"}:
+            return [name]
+        if word in ("python", "python3") and i + 1 < len(words) and words[i + 1].startswith("scripts/"):
+            return ["python", words[i + 1]]
+    return None
+
+
+@functools.cache
+def help_text(program: tuple[str, ...], selectors: tuple[str, ...]) -> str:
+    command = [sys.executable, str(ROOT / program[1])] if program[0] == "python" else [str(BIN / program[0])]
+    result = subprocess.run([*command, *selectors, "--help"], capture_output=True, text=True, timeout=120)
+    return result.stdout + result.stderr
+
+
+def unknown_flags(text: str) -> list[str]:
+    """``command: flag`` for every flag of ``text``'s command blocks that its command's ``--help`` does not list."""
+    unknown = []
+    for block in bash_blocks(text):
+        for words in commands(block):
+            program = program_of(words)
+            if program is None:
+                continue
+            flags = [w.split("=", 1)[0] for w in words if w.startswith("--")]
+            selectors = tuple(w for w in words if w.split("=", 1)[0] in SELECTORS)
+            listed = help_text(tuple(program), selectors)
+            for flag in flags:
+                if flag in PARSER_FLAGS or flag in SELECTORS:
+                    continue
+                if not re.search(rf"(^|[\s\[,]){re.escape(flag)}([\s=\],]|$)", listed, flags=re.M):
+                    unknown.append(f"{' '.join(program)}: {flag}")
+    return unknown
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_printed_flag_is_one_the_cli_knows(page):
+    assert unknown_flags(page.read_text()) == []
+
+
+def test_a_renamed_flag_is_caught():
+    page = "```bash\nlerobot-iupe-relabel --policy.path=x --dataset.repo_id=local/x --dry_runs=true\n```\n"
+    train = "```bash\nlerobot-train --policy.type=iupe --policy.cycle_step=100 --steps=10\n```\n"
+    script = "```bash\npython scripts/make_arm_recording.py --root data/x --episode 4\n```\n"
+    assert unknown_flags(page) == ["lerobot-iupe-relabel: --dry_runs"]
+    assert unknown_flags(train) == ["lerobot-train: --policy.cycle_step"]
+    assert unknown_flags(script) == ["python scripts/make_arm_recording.py: --episode"]
+
+
+def readme_workflow(heading: str) -> str:
+    """The command block under README.md's section ``heading``."""
+    section = README.split(f"## {heading}", 1)[1].split("\n## ", 1)[0]
+    (block,) = bash_blocks(section)
+    return block
+
+
+README = (ROOT / "README.md").read_text()
+
+
+def run_block(block: str, cwd: Path, env: dict | None = None) -> None:
+    (cwd / "scripts").exists() or (cwd / "scripts").symlink_to(ROOT / "scripts")
+    path = f"{BIN}{os.pathsep}{os.environ['PATH']}"
+    result = subprocess.run(
+        ["bash", "-euo", "pipefail", "-c", block], cwd=cwd, capture_output=True, text=True, timeout=900,
+        env={**os.environ, "PATH": path, **(env or {})},
+    )  # fmt: skip
+    assert result.returncode == 0, f"{result.stdout[-3000:]}\n{result.stderr[-5000:]}"
+
+
+def test_workflows_1_and_3_run_as_printed(tmp_path):
+    """Learn from state-only demonstrations and evaluate with lerobot-eval; then push and pull the expert data
+    (against a local hub on 127.0.0.1)."""
+    run_block(readme_workflow("1. Learn a policy from state-only demonstrations"), tmp_path)
+    assert (tmp_path / "outputs/eval-cartpole/eval_info.json").exists()
+    with LocalHub() as hub:
+        run_block(readme_workflow("3. Share demonstration datasets"), tmp_path, hub_env(hub.url, tmp_path / "home"))
+        assert "v3.0" in hub.repos["me/cartpole-expert"].tags
+
+
+def test_workflow_2_runs_as_printed_up_to_the_downstream_training(tmp_path):
+    """Write the recordings, train the IDM, relabel in place; the ACT command's flags are checked above (its
+    training at 640×480 is a benchmark's budget, not a test's)."""
+    block = readme_workflow("2. Relabel a state-only (video) dataset, then train LeRobot's own policy")
+    steps = block.split("lerobot-train --policy.type=act", 1)[0]
+    run_block(steps, tmp_path)
+    info = (tmp_path / "data/arm-unlabelled/meta/info.json").read_text()
+    assert '"action"' in info
