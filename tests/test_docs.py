@@ -39,14 +39,15 @@ def commands(block: str) -> list[list[str]]:
     return found
 
 
-def program_of(words: list[str]) -> list[str] | None:
-    """The program a command runs (``python scripts/x.py`` as two words), or None for one this test does not know."""
+def program_of(words: list[str]) -> tuple[list[str], list[str]] | None:
+    """The program a command runs (``python scripts/x.py`` as two words) and the words it is given, or None for a
+    program this test does not know (a launcher's own flags, as torchrun's, are not the program's)."""
     for i, word in enumerate(words):
         name = Path(word).name
         if name in PROGRAMS - {"torchrun"}:
-            return [name]
+            return [name], words[i + 1 :]
         if word in ("python", "python3") and i + 1 < len(words) and words[i + 1].startswith("scripts/"):
-            return ["python", words[i + 1]]
+            return ["python", words[i + 1]], words[i + 2 :]
     return None
 
 
@@ -62,11 +63,12 @@ def unknown_flags(text: str) -> list[str]:
     unknown = []
     for block in bash_blocks(text):
         for words in commands(block):
-            program = program_of(words)
-            if program is None:
+            found = program_of(words)
+            if found is None:
                 continue
-            flags = [w.split("=", 1)[0] for w in words if w.startswith("--")]
-            selectors = tuple(w for w in words if w.split("=", 1)[0] in SELECTORS)
+            program, arguments = found
+            flags = [w.split("=", 1)[0] for w in arguments if w.startswith("--")]
+            selectors = tuple(w for w in arguments if w.split("=", 1)[0] in SELECTORS)
             listed = help_text(tuple(program), selectors)
             for flag in flags:
                 if flag in PARSER_FLAGS or flag in SELECTORS:
