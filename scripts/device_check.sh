@@ -43,7 +43,7 @@ timed "$(command -v lerobot-train)" --policy.type=iupe --policy.supervised=true 
   | grep -E "step:|exit|caching|Error|error" | tail -8 | tee "$OUT/train.txt"
 CKPT=$WORK/idm/checkpoints/last/pretrained_model
 timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/held \
-  --dataset.root="$WORK/held" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "relabel:" | tee "$OUT/held_out.txt"
+  --dataset.root="$WORK/held" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "frame/s]" | tee "$OUT/held_out.txt"
 timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/arm \
-  --dataset.root="$WORK/arm" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "relabel:" | tee "$OUT/relabel.txt"
+  --dataset.root="$WORK/arm" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "frame/s]" | tee "$OUT/relabel.txt"
 python3 scripts/measure_cameras.py --decode "$WORK/arm" --backend pyav | tee "$OUT/decode.txt"
