@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 import multiprocessing as mp
 import os
 import traceback
@@ -70,7 +71,9 @@ def label_spans_with_idm(
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Labels (int64 ids, or float32 vectors) and confidences of the frames of ``spans``, by episode; each
     episode's last frame follows ``LAST_FRAME_RULE``. Reading runs ahead in a background thread."""
-    config, head = policy.config, policy.idm_head
+    # Labels are chosen on the CPU from the IDM's outputs, whatever device it runs on: the episode's generator is a
+    # CPU one, and a CUDA IDM then labels as the CPU one does.
+    config, head = policy.config, copy.deepcopy(policy.idm_head).cpu()
     offsets = config.idm_window
     results: dict[int, tuple[list, list]] = {}
     generators: dict[int, torch.Generator] = {}
