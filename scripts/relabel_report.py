@@ -123,6 +123,21 @@ def render(out: Path) -> str:
     lines = ["# lerobot-iupe-relabel: measured", "", "On a 2-core CPU, no GPU. Every section names its command.", ""]
     if data.get("real_cameras"):
         lines += _real_cameras(data)
+    if data.get("resolution"):
+        lines += [
+            "### The working resolution for 640×480 cameras",
+            "",
+            _commands(data, "resolution"),
+            "",
+            "| resolution | steps | held-out R² per joint | min | train steps/s | relabel frames/s (torchcodec) |",
+            "|---|---|---|---|---|---|",
+            *[
+                f"| {r['shape'][0]}×{r['shape'][1]} | {r['steps']} | {', '.join(f'{v:.3f}' for v in r['held_out_r2'])} "
+                f"| {min(r['held_out_r2']):.3f} | {r['train_steps_per_s']:.1f} | {r['relabel_frames_per_s']:.0f} |"
+                for r in data["resolution"]
+            ],
+            "",
+        ]
     if data.get("downstream"):
         lines += [
             "## LeRobot's ACT on true actions vs IDM labels",

@@ -1,0 +1,68 @@
+"""The working resolution for 640×480 cameras (``--policy.resize_shape``), chosen by measurement: on the 2,000-frame
+SO-101-shaped recording of ``measure_cameras.py`` (run that first), a supervised IDM per resolution trained with
+otherwise default flags; its R² per joint on the 10 held-out episodes, training steps/s and relabelling frames/s
+(torchcodec, the decoder LeRobot picks here).
+
+    python scripts/measure_resolution.py [--shapes 48x64 96x128 144x192] [--steps 500]
+
+Writes the "resolution" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from measure_cameras import CHECKPOINT, measured  # noqa: E402
+from relabel_report import BIN, update  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--shapes", nargs="+", default=["48x64", "96x128", "144x192"], help="HxW working resolutions")
+    parser.add_argument("--steps", type=int, default=500, help="training steps of each IDM")
+    parser.add_argument("--work", type=Path, default=Path("outputs/measure-cameras"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks"))
+    args = parser.parse_args()
+    command = "python scripts/measure_resolution.py " + " ".join(sys.argv[1:])
+    root, held_out = args.work / "arm-2000", args.work / "arm-held-out"
+    if not (root / "meta" / "info.json").exists():
+        raise SystemExit(f"{root} is missing: run python scripts/measure_cameras.py --frames 2000 first")
+    env = {"LEROBOT_IUPE_CACHE": str(args.work / "frame-cache")}
+    rows = []
+    for shape in args.shapes:
+        h, w = (int(v) for v in shape.split("x"))
+        out = args.work / f"arm-2000-idm-{args.steps}-{h}x{w}"
+        train = measured(
+            str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
+            f"--policy.resize_shape=[{h},{w}]", f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}",
+            f"--output_dir={out}", f"--steps={args.steps}", f"--save_freq={args.steps}", "--log_freq=50",
+            "--policy.device=cpu", "--wandb.enable=false", env=env,
+        )  # fmt: skip
+        updates = [float(u) + float(d) for u, d in re.findall(r"updt_s:([\d.]+) data_s:([\d.]+)", train["output"])]
+        scored = measured(
+            str(BIN / "lerobot-iupe-relabel"), f"--policy.path={out / CHECKPOINT}", "--dataset.repo_id=local/held",
+            f"--dataset.root={held_out}", "--dry_run=true", env=env,
+        )  # fmt: skip
+        per_joint = re.search(r"R² per dimension: (.*)", scored["output"]).group(1)
+        r2 = [float(v) for v in re.findall(r"=([-\d.]+)", per_joint)]
+        relabel = measured(
+            str(BIN / "lerobot-iupe-relabel"), f"--policy.path={out / CHECKPOINT}", "--dataset.repo_id=local/x",
+            f"--dataset.root={root}", "--dry_run=true", "--dataset.video_backend=torchcodec", env=env,
+        )  # fmt: skip
+        rows.append({
+            "shape": [h, w], "steps": args.steps, "held_out_r2": r2,
+            "train_steps_per_s": 1.0 / np.mean(updates[len(updates) // 2 :]),
+            "relabel_frames_per_s": float(re.search(r"\((\d+) frames/s\)", relabel["output"]).group(1)),
+        })  # fmt: skip
+        print(rows[-1], flush=True)
+    update(args.out, "resolution", rows, command, key=("shape", "steps"))
+
+
+if __name__ == "__main__":
+    main()
