@@ -1,9 +1,10 @@
 """The working resolution for 640×480 cameras (``--policy.resize_shape``), chosen by measurement: on the 2,000-frame
 SO-101-shaped recording of ``measure_cameras.py`` (run that first), a supervised IDM per resolution trained with
 otherwise default flags; its R² per joint on the 10 held-out episodes, training steps/s and relabelling frames/s
-(torchcodec, the decoder LeRobot picks here).
+(torchcodec, the decoder LeRobot picks here). With ``--cameras_only`` the IDM reads the two cameras alone: the
+arm's state tells its own motion, so only then does the picture decide the labels.
 
-    python scripts/measure_resolution.py [--shapes 48x64 96x128 144x192] [--steps 500]
+    python scripts/measure_resolution.py [--shapes 48x64 96x128 144x192] [--steps 500] [--cameras_only]
 
 Writes the "resolution" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
 """
@@ -21,11 +22,16 @@ sys.path.insert(0, str(Path(__file__).parent))
 from measure_cameras import CHECKPOINT, measured  # noqa: E402
 from relabel_report import BIN, update  # noqa: E402
 
+from lerobot_iupe.data.arm_recording import CAMERAS  # noqa: E402
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--shapes", nargs="+", default=["48x64", "96x128", "144x192"], help="HxW working resolutions")
     parser.add_argument("--steps", type=int, default=500, help="training steps of each IDM")
+    parser.add_argument(
+        "--cameras_only", action="store_true", help="the IDM reads the two cameras alone (not observation.state)"
+    )
     parser.add_argument("--work", type=Path, default=Path("outputs/measure-cameras"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks"))
     args = parser.parse_args()
@@ -37,12 +43,14 @@ def main() -> None:
     rows = []
     for shape in args.shapes:
         h, w = (int(v) for v in shape.split("x"))
-        out = args.work / f"arm-2000-idm-{args.steps}-{h}x{w}"
+        reads = "cameras" if args.cameras_only else "cameras and state"
+        out = args.work / f"arm-2000-idm-{args.steps}-{h}x{w}{'-cameras' if args.cameras_only else ''}"
+        only = [f"--policy.idm_observation_keys=[{','.join(CAMERAS)}]"] if args.cameras_only else []
         train = measured(
             str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
             f"--policy.resize_shape=[{h},{w}]", f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}",
             f"--output_dir={out}", f"--steps={args.steps}", f"--save_freq={args.steps}", "--log_freq=50",
-            "--policy.device=cpu", "--wandb.enable=false", env=env,
+            "--policy.device=cpu", "--wandb.enable=false", *only, env=env,
         )  # fmt: skip
         updates = [float(u) + float(d) for u, d in re.findall(r"updt_s:([\d.]+) data_s:([\d.]+)", train["output"])]
         scored = measured(
@@ -56,12 +64,12 @@ def main() -> None:
             f"--dataset.root={root}", "--dry_run=true", "--dataset.video_backend=torchcodec", env=env,
         )  # fmt: skip
         rows.append({
-            "shape": [h, w], "steps": args.steps, "held_out_r2": r2,
+            "shape": [h, w], "steps": args.steps, "idm_reads": reads, "held_out_r2": r2,
             "train_steps_per_s": 1.0 / np.mean(updates[len(updates) // 2 :]),
             "relabel_frames_per_s": float(re.search(r"\((\d+) frames/s\)", relabel["output"]).group(1)),
         })  # fmt: skip
         print(rows[-1], flush=True)
-    update(args.out, "resolution", rows, command, key=("shape", "steps"))
+    update(args.out, "resolution", rows, command, key=("shape", "steps", "idm_reads"))
 
 
 if __name__ == "__main__":

@@ -129,10 +129,12 @@ def render(out: Path) -> str:
             "",
             _commands(data, "resolution"),
             "",
-            "| resolution | steps | held-out R² per joint | min | train steps/s | relabel frames/s (torchcodec) |",
-            "|---|---|---|---|---|---|",
+            "| resolution | IDM reads | steps | held-out R² per joint | min | train steps/s "
+            "| relabel frames/s (torchcodec) |",
+            "|---|---|---|---|---|---|---|",
             *[
-                f"| {r['shape'][0]}×{r['shape'][1]} | {r['steps']} | {', '.join(f'{v:.3f}' for v in r['held_out_r2'])} "
+                f"| {r['shape'][0]}×{r['shape'][1]} | {r.get('idm_reads', 'cameras and state')} | {r['steps']} "
+                f"| {', '.join(f'{v:.3f}' for v in r['held_out_r2'])} "
                 f"| {min(r['held_out_r2']):.3f} | {r['train_steps_per_s']:.1f} | {r['relabel_frames_per_s']:.0f} |"
                 for r in data["resolution"]
             ],
