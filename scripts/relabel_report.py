@@ -51,8 +51,9 @@ def update(out: Path, section: str, rows: list[dict], command: str, key: tuple[s
     if key is None:
         data[section] = rows
     else:
-        new = {tuple(r.get(k) for k in key) for r in rows}
-        data[section] = [r for r in data.get(section, []) if tuple(r.get(k) for k in key) not in new] + rows
+        of = lambda r: tuple(json.dumps(r.get(k)) for k in key)  # noqa: E731  (lists are keys too)
+        new = {of(r) for r in rows}
+        data[section] = [r for r in data.get(section, []) if of(r) not in new] + rows
     commands = data["commands"].get(section, [])
     commands = [commands] if isinstance(commands, str) else commands
     data["commands"][section] = commands + [command] if command not in commands else commands
