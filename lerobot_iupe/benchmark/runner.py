@@ -27,10 +27,10 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
-from lerobot_iupe.benchmark.evaluation import EVAL_SEED, evaluate_agent, evaluate_checkpoint, read_training_run
-from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags, samples
+from lerobot_iupe.benchmark.evaluation import evaluate_agent, evaluate_checkpoint, read_training_run
+from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest
+from lerobot_iupe.benchmark.runs import Run, agent_config_key, selection_rule
 from lerobot_iupe.policy.algorithm import performance
-from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 
 BIN = Path(sys.executable).parent
 CHECKPOINT = "checkpoints/last/pretrained_model"
@@ -103,76 +103,6 @@ def collect_datasets(
             )  # fmt: skip
         paths[kind] = root
     return paths
-
-
-def config_key(
-    preset: EnvPreset, quick: bool, train_flags: list[str], eval_episodes: int, plays_selection_episodes: bool
-) -> str:
-    """Hash of everything that determines a run's rows: datasets, training flags, evaluation."""
-    key = [preset.data_key(quick), train_flags, eval_episodes, preset.eval_modes]
-    if preset.rollout_layouts:  # the evaluated layouts depend on it (also for the built-in agents)
-        key.append([preset.scored_episodes(layouts, eval_episodes) for layouts in preset.layouts])
-    if plays_selection_episodes:  # rows selected on the exploring rollouts (older code) are not these
-        key.append("selection on episodes played as lerobot-eval plays")
-    return digest(key)
-
-
-def agent_config_key(preset: EnvPreset, quick: bool, eval_episodes: int) -> str:
-    """``config_key`` of a built-in agent's rows (nothing trained, nothing selected)."""
-    return config_key(preset, quick, [], eval_episodes, plays_selection_episodes=False)
-
-
-@dataclass
-class Run:
-    """One cell entry to produce: a method (and training seed) on an env's datasets."""
-
-    table: str
-    name: str
-    preset: EnvPreset
-    method: str
-    seed: int | None
-    data: dict[str, Path]
-    references: dict[str | None, tuple[float, float]]  # eval layouts → (R_expert, R_random)
-    quick: bool = False
-
-    @property
-    def train_flags(self) -> list[str]:
-        return [*self.budget.flags(samples(self.method)), *method_flags(self.method)]
-
-    @property
-    def budget(self):
-        return QUICK_BUDGET if self.quick else self.preset.train
-
-    def config_key(self, eval_episodes: int) -> str:
-        """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
-        if self.method in ("expert", "random"):
-            return agent_config_key(self.preset, self.quick, eval_episodes)
-        return config_key(self.preset, self.quick, self.train_flags, eval_episodes, self.plays_selection_episodes)
-
-    @property
-    def plays_selection_episodes(self) -> bool:
-        """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default; BC when
-        the preset gives selection episodes)."""
-        if self.method in ("expert", "random"):
-            return False
-        policy = dict(f.removeprefix("--policy.").split("=", 1) for f in self.train_flags if f.startswith("--policy."))
-        config = IUPEConfig(  # the config's own rule, from the settings it depends on
-            device="cpu",
-            supervised=policy.get("supervised", "false") == "true",
-            exploration=policy.get("exploration", "true") == "true",
-            eval_mode=policy.get("eval_mode", "argmax"),
-            selection_episodes=int(policy["selection_episodes"]) if "selection_episodes" in policy else None,
-        )
-        return config.separate_selection_episodes > 0
-
-    @property
-    def cost(self) -> float:
-        """Rough relative duration (training steps × pixels), to start the longest runs first."""
-        if self.method in ("expert", "random"):
-            return 0.0
-        return (
-            self.preset.train.steps * self.preset.env.get("image_size", 1) ** 2 * (0.3 if self.method == "bc" else 1.0)
-        )
 
 
 @dataclass
@@ -432,30 +362,3 @@ class Benchmark:
                         "timing": timing, "cycles": cycles,
                     }
                 )  # fmt: skip
-
-
-def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
-    """How a run's checkpoint was chosen, in words (recorded with each of its rows)."""
-    if not cycles:
-        return "the last step's weights (no selection)"
-    config = json.loads((checkpoint / "config.json").read_text())
-    episodes, layouts = config["rollout_episodes"], config.get("rollout_layouts", 0)
-    if not run.preset.is_maze:
-        where = f"seeds ≥ 1,000,000 (evaluation: {EVAL_SEED}…)"
-    elif layouts:
-        where = f"the last {layouts} demonstration layouts, which the demonstration-layout evaluation does not play"
-    else:
-        where = "the expert dataset's own (demonstration) layouts, which the evaluation also plays"
-    judged_by_env = "env_success_rate" in cycles[0] or "selection_env_success_rate" in cycles[0]
-    rule = "the env's success, then the goal reached at any step, " if judged_by_env else ""
-    if cycles[0].get("selection_s") is not None and cycles[-1]["selection_s"] > 0:
-        played = "a draw" if config.get("eval_mode") == "sample" else "the mode"
-        return (
-            f"best success of a cycle on {cycles[0]['selection_episodes']} episodes of its own played by {played} "
-            f"(as lerobot-eval plays), the same start seeds every cycle ({rule}{len(cycles)} cycles, latest on "
-            f"ties), on {where}"
-        )
-    return (
-        f"best rollout success of a cycle ({rule}{len(cycles)} cycles × {episodes} episodes, latest on ties), "
-        f"on {where}"
-    )

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -20,6 +19,7 @@ from lerobot_iupe.envs.configs import (
     env_config_from_settings,
     env_settings,
 )
+from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims
 from lerobot_iupe.policy.train_run import lerobot_train_config
 
 EVAL_MODES = ("argmax", "sample")
@@ -367,7 +367,7 @@ class IUPEConfig(PreTrainedConfig):
                 )
         if self.n_actions == 0 and not self.is_continuous:
             if self.env_settings is None and dataset_meta is not None and self.supervised:
-                self.action_space_from_dataset(dataset_meta)
+                action_space_from_dataset(self, dataset_meta)
             elif self.env_settings is None:
                 raise ValueError(
                     "cannot tell the action space: no --env.type, no --policy.env_settings and the expert dataset "
@@ -390,38 +390,4 @@ class IUPEConfig(PreTrainedConfig):
 
     def check_binary_action_dims(self) -> None:
         """``binary_action_dims`` must name dimensions of a continuous action."""
-        if not self.binary_action_dims:
-            return
-        if not self.is_continuous:
-            raise ValueError(
-                f"--policy.binary_action_dims={self.binary_action_dims} applies to continuous (Box) actions; this "
-                f"action space is discrete ({self.n_actions} actions): leave it empty"
-            )
-        outside = [d for d in self.binary_action_dims if d >= self.action_dim]
-        if outside:
-            names = self.action_names or [f"a{i}" for i in range(self.action_dim)]
-            raise ValueError(
-                f"--policy.binary_action_dims names dimension(s) {outside}, but the action has {self.action_dim} "
-                f"(0 … {self.action_dim - 1}: {names})"
-            )
-
-    def action_space_from_dataset(self, dataset_meta) -> None:
-        """The action space of a labelled dataset without an env: integer actions are ids 0 … max (LeRobot's
-        stats), float actions a box spanning the data (a constant dimension gets ±0.5 around its value)."""
-        feature = dataset_meta.features[ACTION]
-        stats = (dataset_meta.stats or {}).get(ACTION)
-        if stats is None:
-            raise ValueError(f"the dataset {dataset_meta.root} has no stats for '{ACTION}' (meta/stats.json)")
-        low = np.asarray(stats["min"], dtype=np.float64).reshape(-1)
-        high = np.asarray(stats["max"], dtype=np.float64).reshape(-1)
-        if not feature["dtype"].startswith("float"):
-            self.n_actions = int(high.max()) + 1
-            return
-        flat = high - low < 1e-6
-        self.action_low = [float(x) for x in np.where(flat, low - 0.5, low)]
-        self.action_high = [float(x) for x in np.where(flat, high + 0.5, high)]
-        names = feature.get("names")
-        if isinstance(names, dict):  # LeRobot also writes {"motors": [...]}
-            names = next(iter(names.values()), None)
-        dim = len(self.action_low)
-        self.action_names = [str(n) for n in names] if names and len(names) == dim else [f"a{i}" for i in range(dim)]
+        check_binary_action_dims(self)

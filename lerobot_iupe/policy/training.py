@@ -20,42 +20,40 @@ import json
 import logging
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.utils.constants import ACTION
-from torch import Tensor
+from torch import Tensor, nn
 
 from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
 from lerobot_iupe.data.readers import ExpertFrames, load_transitions
-from lerobot_iupe.data.storage import is_dataset, read_iupe_meta
+from lerobot_iupe.data.storage import is_dataset
 from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.data.video import default_video_backend
-from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys, make_envs
-from lerobot_iupe.envs.rollout import run_episodes
+from lerobot_iupe.envs.configs import env_config_from_settings
 from lerobot_iupe.policy.algorithm import (
     ActionCells,
     build_sampled_set,
     held_out_split,
-    r_squared,
     selects,
     success_action_distribution,
 )
+from lerobot_iupe.policy.idm_fit import fit_idm
+from lerobot_iupe.policy.rollouts import PolicyRollouts
 from lerobot_iupe.policy.train_run import resuming
 from lerobot_iupe.policy.training_state import CYCLES_FILE, TRAINING_STATE_FILE, TrainingState
-
-if TYPE_CHECKING:
-    from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
 
 log = logging.getLogger("lerobot_iupe")
 
 
 class IUPETrainer:
-    """Runs the cycle on ``policy`` (its IDM and policy model) with the expert dataset ``dataset_meta``."""
+    """Runs the cycle on ``policy`` (an ``IUPEPolicy``: its IDM and policy model) with the expert dataset
+    ``dataset_meta``. The policy builds and holds its trainer; this module does not import the policy's, so
+    imports run one way."""
 
-    def __init__(self, policy: IUPEPolicy, dataset_meta: LeRobotDatasetMetadata, seed: int):
+    def __init__(self, policy: nn.Module, dataset_meta: LeRobotDatasetMetadata, seed: int):
         self.policy, self.config, self.dataset_meta, self.seed = policy, policy.config, dataset_meta, seed
         # --resume=true continues the saved cycle state exactly; --policy.path alone starts a new run from the
         # checkpoint's weights (LeRobot's fine-tuning).
@@ -63,10 +61,7 @@ class IUPETrainer:
         self.state: TrainingState | None = None
         self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
         self.selected_weights: dict[str, Tensor] | None = None  # the model ``algorithm.selects`` kept so far
-        self.envs: list = []  # rollout envs, created once and reused by every cycle
-        self.layouts: list[int] = []  # maze: the layout ids rollouts cycle through (--policy.rollout_layouts)
-        self.env_cfg = None  # the rollout env, set by check_inputs
-        self.env_keys: list[str] = []  # the env observations the policy reads (features_map: env key → its key)
+        self.rollouts = PolicyRollouts(policy)  # the rollout env (set by check_inputs), its envs and layouts
         self.cells: ActionCells | None = None  # continuous actions: the sampling rule's action classes
         self._expert: ExpertFrames | None = None
 
@@ -118,26 +113,19 @@ class IUPETrainer:
 
     def use_layouts(self) -> None:
         """Mazes: the expert dataset's layouts that rollouts and selection episodes play (the last K of them)."""
-        cfg, meta = self.config, self.dataset_meta
-        layouts = [int(i) for i in read_iupe_meta(meta.root).get("layout_ids", [])]
-        if cfg.rollout_layouts and cfg.rollout_layouts >= len(set(layouts)):
-            raise ValueError(
-                f"--policy.rollout_layouts={cfg.rollout_layouts} must be below the number of distinct layouts of the "
-                f"expert dataset at {meta.root} ({len(set(layouts))}), so that some are never rolled out on"
-                + ("" if layouts else ": it records none (meta/iupe.json layout_ids; maze datasets only)")
-            )
-        self.layouts = list(dict.fromkeys(layouts))[-cfg.rollout_layouts :] if cfg.rollout_layouts else layouts
+        self.rollouts.use_layouts(self.dataset_meta)
 
     def use_env(self, env_cfg) -> None:
         """Roll out in ``env_cfg`` (any LeRobot env type whose ``features_map`` gives the policy's observations)."""
-        env_key_of = {v: k for k, v in env_observation_keys(env_cfg).items()}
-        missing = [k for k in self.config.observation_keys if k not in env_key_of]
-        if missing:
-            raise ValueError(
-                f"env {env_cfg.type} gives no {missing} (its observations: {sorted(env_key_of)}); "
-                "the policy reads what the expert dataset holds"
-            )
-        self.env_cfg, self.env_keys, self.envs = env_cfg, [env_key_of[k] for k in self.config.observation_keys], []
+        self.rollouts.use_env(env_cfg)
+
+    @property
+    def env_cfg(self):
+        return self.rollouts.env_cfg
+
+    @property
+    def envs(self) -> list:
+        return self.rollouts.envs
 
     def start(self) -> None:
         cfg = self.config
@@ -379,61 +367,11 @@ class IUPETrainer:
         after cycle, and the selection episodes always at 50,000 past it."""
         return 1_000_000 * (1 + self.state.rank) + self.seed * 100_003
 
-    @torch.no_grad()
     def rollout(
         self, episodes: int, seed: int, explore: bool
     ) -> tuple[list[Transitions], np.ndarray, np.ndarray, np.ndarray]:
-        """The policy model in ``episodes`` envs at once (batched inference), one episode each, env ``i`` seeded
-        ``seed + i`` (mazes: the expert dataset's layouts in turn); in eval mode (batch-norm statistics kept).
-        Returns each episode's transitions, goal reached (v_e), return and the env's own success.
-        Envs are made once by LeRobot's ``make_env`` (any LeRobot env type) and reused by every cycle."""
-        policy = self.policy
-        if len(self.envs) < episodes:
-            self.envs += make_envs(self.env_cfg, episodes - len(self.envs))
-        envs = self.envs[:episodes]
-        generator = self.state.torch_rng if self.state else None
-        continuous = self.config.is_continuous
-
-        history: Tensor | None = None  # every env's last n_obs_steps observations (E, n, …)
-
-        def act(observations: list[dict], active: list[int]) -> list:
-            nonlocal history
-            obs = torch.as_tensor(np.stack([self.observation(o) for o in observations]), device=self.device)
-            if history is None:  # the first step: every env is active
-                history = policy.push_history(None, obs)
-            else:
-                rows = torch.as_tensor(active, device=self.device)
-                history[rows] = policy.push_history(history[rows], obs)
-            actions = policy.pm_head.choose(policy.pm_history_output(history[active]), explore, generator)
-            actions = actions.cpu().numpy()
-            return list(actions) if continuous else [int(a) for a in actions]
-
-        seeds = [seed + i for i in range(episodes)]
-        options = [{"layout_id": self.layouts[s % len(self.layouts)]} if self.layouts else None for s in seeds]
-        was_training = policy.training
-        policy.eval()
-        with policy.averaged_weights():  # the policy acts with its weight average (ema_decay), as it is saved
-            played = run_episodes(envs, act, seeds, options)
-        policy.train(was_training)
-        transitions = []
-        for episode in played:
-            observations = np.stack([self.observation(o) for o in episode.observations])
-            if continuous:
-                actions = np.asarray(episode.actions, dtype=np.float32).reshape(len(episode), -1)
-            else:
-                actions = np.asarray(episode.actions, dtype=np.int64)
-            transitions.append(Transitions(observations[:-1], actions, observations[1:]))
-        successes = np.array([e.goal_reached for e in played])  # v_e: the goal reached at some step
-        returns = np.array([e.total_reward for e in played])
-        return transitions, successes, returns, np.array([e.success for e in played])
-
-    def observation(self, env_observation_dict: dict) -> np.ndarray:
-        """The policy's input from one env observation: its keys (cameras (H, W, C) → (C, H, W)) joined in
-        observation_keys order."""
-        layout = self.policy.layout
-        parts = [np.asarray(env_observation(env_observation_dict, k)) for k in self.env_keys]
-        parts = [p.transpose(2, 0, 1) if visual else p for p, visual in zip(parts, layout.visual, strict=True)]
-        return layout.join([p[None] for p in parts])[0]
+        """``PolicyRollouts.play`` with this run's torch stream."""
+        return self.rollouts.play(episodes, seed, explore, self.state.torch_rng if self.state else None)
 
     @property
     def idm_metric(self) -> str:
@@ -447,36 +385,9 @@ class IUPETrainer:
     def train_idm(self, data: Transitions, held_out: Transitions) -> None:
         """Train the IDM on I^s (``data``, all of it) and score it on ``held_out`` (``idm_metric``), transitions
         of which ``data`` holds no copy."""
-        policy, state = self.policy, self.state
-        rng, device, batch_size = state.rng, self.device, self.config.idm_batch_size
-        train = rng.permutation(len(data))
-        to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
-        policy.train()
-        for _ in range(self.config.idm_epochs):
-            rng.shuffle(train)
-            for start in range(0, len(train), batch_size):
-                idx = train[start : start + batch_size]
-                output = policy.idm_output(to(data.states[idx]), to(data.next_states[idx]))
-                loss = policy.idm_head.loss(output, to(data.actions[idx]))
-                state.idm_optimizer.zero_grad()
-                loss.backward()
-                state.idm_optimizer.step()
-        # lerobot-train clips (and logs) the norm of every parameter's gradient: only the policy model's may be left.
-        state.idm_optimizer.zero_grad(set_to_none=True)
-        policy.eval()
-        with torch.no_grad():
-            predicted = []
-            for start in range(0, len(held_out), 1024):
-                part = held_out.take(np.arange(start, min(start + 1024, len(held_out))))
-                output = policy.idm_output(to(part.states), to(part.next_states))
-                predicted.append(policy.idm_head.mode(output).cpu().numpy())
-        policy.train()
-        if predicted:
-            predicted, true = np.concatenate(predicted), held_out.actions
-            score = r_squared(predicted, true) if self.config.is_continuous else float((predicted == true).mean())
-        else:  # a single pre-demonstration transition: nothing to hold out
-            score = float("nan")
-        self.stats.update({"idm_loss": float(loss.detach()), self.idm_metric: score})
+        state = self.state
+        loss, score = fit_idm(self.policy, state.idm_optimizer, data, held_out, state.rng)
+        self.stats.update({"idm_loss": loss, self.idm_metric: score})
 
     # ------------------------------------------------------------ checkpoints
 
