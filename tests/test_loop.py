@@ -12,6 +12,7 @@ from lerobot.datasets import LeRobotDatasetMetadata
 from lerobot.policies import make_policy
 from safetensors.torch import load_file
 
+import lerobot_iupe.policy.rollouts as rollouts
 import lerobot_iupe.policy.training as training
 from lerobot_iupe.data.storage import read_iupe_meta
 from lerobot_iupe.data.transitions import Transitions
@@ -242,9 +243,9 @@ def test_rollouts_play_only_the_last_rollout_layouts_of_the_expert_dataset(maze_
     demonstrated = list(dict.fromkeys(read_iupe_meta(maze_expert)["layout_ids"]))
     policy = build(maze_expert, maze_random, rollout_layouts=2)
     played = []
-    monkeypatch.setattr(training, "run_episodes", Spy(training.run_episodes))
+    monkeypatch.setattr(rollouts, "run_episodes", Spy(rollouts.run_episodes))
     train_steps(policy, maze_expert, 4)  # two cycles of 4 rollouts and 4 selection episodes
-    for (_, _, _, options), _, _ in training.run_episodes.calls:
+    for (_, _, _, options), _, _ in rollouts.run_episodes.calls:
         played += [option["layout_id"] for option in options]
     assert len(demonstrated) > 2 and len(played) == 16
     assert set(played) == set(demonstrated[-2:])  # the selection never plays the other demonstrated layouts
