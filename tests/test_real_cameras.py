@@ -187,3 +187,23 @@ def test_attention_is_the_full_sagan_product_on_small_maps_and_bounded_on_large_
     big = torch.randn(1, 16, 120, 160)
     out = attention(big)
     assert out.shape == big.shape and not torch.allclose(out, big)
+
+
+def test_a_relabel_whose_decoding_process_dies_stops_with_an_error(arm_run, data_dir, monkeypatch):
+    """A decoder killed from outside (as the kernel kills for memory) ends the relabel with an error, not a hang."""
+    import signal
+
+    from lerobot_iupe.relabel import labelling
+    from lerobot_iupe.relabel.config import RelabelConfig
+    from lerobot_iupe.relabel.run import relabel
+
+    def killed(reader, spans, out) -> None:
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    monkeypatch.setattr(labelling, "_decode_spans", killed)
+    root = arm(data_dir, "arm-480-state-only", episodes=3, frames_per_episode=24, with_actions=False)
+    config = RelabelConfig()
+    config.policy.path, config.dataset.root, config.dataset.repo_id = str(arm_run / CHECKPOINT), str(root), "local/x"
+    config.dataset.video_backend, config.dry_run = "pyav", True
+    with pytest.raises(RuntimeError, match="died"):
+        relabel(config)

@@ -7,6 +7,7 @@ import copy
 import multiprocessing as mp
 import os
 import traceback
+from queue import Empty
 
 import numpy as np
 import torch
@@ -44,7 +45,7 @@ def decoded_ahead(reader: FrameReader, spans: list[LabelSpan], depth: int = 4):
     process = context.Process(target=_decode_spans, args=(reader, spans, queue), daemon=True)
     process.start()
     try:
-        while (item := queue.get()) is not None:
+        while (item := _next_decoded(queue, process)) is not None:
             if isinstance(item, str):
                 raise RuntimeError(f"decoding the dataset's frames failed:\n{item}")
             span, parts = item
@@ -52,6 +53,19 @@ def decoded_ahead(reader: FrameReader, spans: list[LabelSpan], depth: int = 4):
     finally:
         process.kill()
         process.join()
+
+
+def _next_decoded(queue, process):
+    """The decoding process's next item; an error if it died without saying why (killed, e.g. out of memory)."""
+    while True:
+        try:
+            return queue.get(timeout=5)
+        except Empty:
+            if not process.is_alive():
+                raise RuntimeError(
+                    f"the process decoding the dataset's frames died (exit code {process.exitcode}); if it was killed "
+                    "for memory, lower --batch_size"
+                ) from None
 
 
 def episode_generator(seed: int, episode: int) -> torch.Generator:
