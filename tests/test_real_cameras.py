@@ -207,3 +207,20 @@ def test_a_relabel_whose_decoding_process_dies_stops_with_an_error(arm_run, data
     config.dataset.video_backend, config.dry_run = "pyav", True
     with pytest.raises(RuntimeError, match="died"):
         relabel(config)
+
+
+@pytest.mark.parametrize("shape", [[96], [96, 128, 3], [4, 128]])
+def test_a_malformed_resize_shape_is_refused_naming_the_flag(shape):
+    from lerobot_iupe.policy import IUPEConfig
+
+    with pytest.raises(ValueError, match=r"--policy.resize_shape must be \[height, width\] of at least 8 pixels"):
+        IUPEConfig(resize_shape=shape)
+
+
+def test_a_camera_with_other_channels_is_refused_naming_both_sides():
+    from lerobot_iupe.data.compat import DataSpec, check_compatible
+
+    checkpoint = DataSpec("the checkpoint", CAMERAS[0], (480, 640, 3))
+    check_compatible(checkpoint, DataSpec("a smaller dataset", CAMERAS[0], (240, 320, 3)))  # any size is resized
+    with pytest.raises(ValueError, match="has 1 channels in the depth dataset but 3 in the checkpoint"):
+        check_compatible(checkpoint, DataSpec("the depth dataset", CAMERAS[0], (480, 640, 1)))
