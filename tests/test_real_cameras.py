@@ -142,6 +142,29 @@ def test_lerobot_eval_plays_a_maze_rendered_at_another_size(maze_run, tmp_path):
     assert overall["n_episodes"] == 2
 
 
+def test_the_generator_waits_for_lerobots_encoder_so_every_video_holds_its_episode(arm_labelled, tmp_path):
+    """LeRobot's streaming encoder drops a frame when its queue is full (as on a loaded CI machine); the generator
+    waits on those queues, so it must find them on LeRobot's real writer."""
+    import av
+
+    from lerobot_iupe.data.arm_recording import arm_features, encoder_queues
+
+    dataset = LeRobotDataset.create("local/q", 30, arm_features(48, 64, True), root=tmp_path / "q",
+                                    use_videos=True, streaming_encoding=True)  # fmt: skip
+    frame = {key: np.zeros((48, 64, 3), np.uint8) for key in CAMERAS}
+    dataset.add_frame({**frame, "observation.state": np.zeros(6, np.float32),
+                       "action": np.zeros(6, np.float32), "task": "t"})  # fmt: skip
+    assert len(encoder_queues(dataset)) == len(CAMERAS)
+    dataset.save_episode()
+    dataset.finalize()
+
+    written = LeRobotDataset("local/arm-480", root=arm_labelled, video_backend="pyav")
+    for key in CAMERAS:
+        for path in sorted((arm_labelled / "videos" / key).rglob("*.mp4")):
+            with av.open(str(path)) as container:
+                assert sum(1 for _ in container.decode(video=0)) == written.meta.total_frames
+
+
 def test_the_frame_cache_is_reused_and_rebuilt_when_the_dataset_changes(data_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("LEROBOT_IUPE_CACHE", str(tmp_path / "cache"))
     root = tmp_path / "arm"

@@ -10,6 +10,7 @@ its forward kinematics from the front and from above, over a fixed textured tabl
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +113,20 @@ def teleoperated_episode(frames: int, rng: np.random.Generator) -> tuple[np.ndar
     return positions, targets
 
 
+def _wait_for_encoder(dataset, poll_s: float = 0.002) -> None:
+    """Block while a camera's streaming-encoder queue is full. LeRobot's writer drops a frame then (a live camera
+    cannot wait); a generator can, and a dropped frame would leave a video shorter than its episode."""
+    while any(queue.full() for queue in encoder_queues(dataset)):
+        time.sleep(poll_s)
+
+
+def encoder_queues(dataset) -> list:
+    """The frame queues of the writer's streaming encoder for the episode being written (none before its first
+    frame, or without streaming encoding)."""
+    encoder = getattr(dataset.writer, "_streaming_encoder", None)
+    return list(getattr(encoder, "_frame_queues", {}).values())
+
+
 def write_arm_recording(
     root: str | Path,
     episodes: int,
@@ -154,6 +169,7 @@ def write_arm_recording(
             frame["observation.state"] = q
             if with_actions:
                 frame["action"] = target
+            _wait_for_encoder(dataset)
             dataset.add_frame({**frame, "task": "move the arm"})
         dataset.save_episode()
     dataset.finalize()

@@ -82,7 +82,9 @@ class CameraFrames:
         if len(frames) != count:
             raise RuntimeError(
                 f"{path}: expected {count} frames from {start_s:.3f} s (episode {episode}, frames {lo}…{hi}) but the "
-                f"video holds {len(frames)} there; the dataset's episode timestamps and its video disagree"
+                f"video holds {len(frames)} there; the dataset's episode timestamps and its video disagree (a "
+                f"recording whose streaming encoder fell behind drops frames: 'Encoder queue full' at record time). "
+                f"Re-record that episode or remove it from the dataset"
             )
         return frames
 
