@@ -8,8 +8,6 @@ such a checkpoint with ``--resume=true`` continues from that state; ``--policy.p
 from its weights (``train_run``).
 """
 
-from __future__ import annotations
-
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
