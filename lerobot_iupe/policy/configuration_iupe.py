@@ -69,9 +69,6 @@ class IUPEConfig(ObservationPolicyConfig):
     # cycle_steps steps and keeps the best policy model, as BCO(α) and IUPE do (it needs the env, as they do); its
     # IDM, which relabelling reads, stays the latest.
     selection_episodes: int | None = None
-    # Mazes: the rollouts (whose success also selects the model) play only the expert dataset's last K layouts;
-    # 0 = all of them. An evaluation on the other layouts then never plays a layout the selection saw.
-    rollout_layouts: int = 0
     # IDM epochs per cycle and batch size; 0 = 2 and 256 for vector states (10 epochs for continuous actions), 5
     # and 64 for images (a CNN needs more, smaller steps: on Maze 5x5, 3 epochs of batch 256 stayed at chance).
     idm_epochs: int = 0
@@ -90,6 +87,7 @@ class IUPEConfig(ObservationPolicyConfig):
     # spread 1.00 / 0.14 / 0.66 without it and 0.78 / 0.66 / 0.72 with 0.995 (benchmarks/history.md). A supervised
     # run that does not select keeps no training state, so --resume=true goes on from the saved average.
     ema_decay: float = 0.0
+
     def __post_init__(self):
         super().__post_init__()
         if self.cycle_steps <= 0 or self.rollout_episodes <= 0:
@@ -102,8 +100,6 @@ class IUPEConfig(ObservationPolicyConfig):
             raise ValueError(
                 f"--policy.max_success_share must be in (0, 1] (1 = the paper's sampling), got {self.max_success_share}"
             )
-        if self.rollout_layouts < 0:
-            raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"--policy.ema_decay must be in [0, 1) (0 = no weight average), got {self.ema_decay}")
         if self.idm_context is not None and self.idm_context < 0:

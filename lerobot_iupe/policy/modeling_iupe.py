@@ -152,6 +152,10 @@ class IUPEPolicy(PreTrainedPolicy):
         first, concatenated (channels for images)."""
         return self.pm_head(self.pm_encoder(torch.cat(list(self._prepare(history).unbind(1)), dim=1)))
 
+    def rollout_actions(self, history: Tensor, explore: bool, generator: torch.Generator | None = None) -> Tensor:
+        """The policy model's actions on the last observations (B, n_obs_steps, …): draws or modes."""
+        return self.pm_head.choose(self.pm_history_output(history), explore, generator)
+
     def push_history(self, history: Tensor | None, observation: Tensor) -> Tensor:
         """``history`` (B, n, …) moved on by one ``observation`` (B, …); a new episode (None, or another batch
         size) starts as n copies of its first observation."""

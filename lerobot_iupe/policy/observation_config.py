@@ -52,6 +52,10 @@ class ObservationPolicyConfig(PreTrainedConfig):
     # lerobot-train's --env.* win when given (also over the env a --policy.path checkpoint recorded); else this; else
     # the expert dataset's meta/iupe.json. From Python, set it here: the policy never reads the process's command line.
     env_settings: dict | None = None
+    # Mazes: the online phase (IUPE's rollouts, ILPO's remapping) and the model selection play only the expert
+    # dataset's last K layouts; 0 = all of them. An evaluation on the other layouts then never plays a layout the
+    # selection saw.
+    rollout_layouts: int = 0
     # Every camera is resized to [height, width] before the encoders — in training, rollouts, select_action
     # (lerobot-eval) and relabelling — so that a dataset or env of another camera size is read at the size the
     # checkpoint learned (LeRobot's name, as in its Diffusion policy). None = cameras as they are when none is over
@@ -89,6 +93,8 @@ class ObservationPolicyConfig(PreTrainedConfig):
             self.action_low is not None and len(self.action_low) != len(self.action_high)
         ):
             raise ValueError("--policy.action_low and --policy.action_high must be given together, one per dimension")
+        if self.rollout_layouts < 0:
+            raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")
         if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) < 8):
             raise ValueError(
                 f"--policy.resize_shape must be [height, width] of at least 8 pixels each (e.g. [96,128] for "

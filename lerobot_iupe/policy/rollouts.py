@@ -1,5 +1,5 @@
-"""The policy model played in its rollout env: the IUPE cycle's rollouts and the selection episodes, any LeRobot
-env type, several envs at once with batched inference."""
+"""A policy played in its env: the IUPE cycle's rollouts, the selection episodes of every plugin policy, any
+LeRobot env type, several envs at once with batched inference."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ from lerobot_iupe.envs.rollout import run_episodes
 
 
 class PolicyRollouts:
-    """Plays ``policy`` (an ``IUPEPolicy``) in the env set by ``use_env``, on the layouts set by ``use_layouts``."""
+    """Plays ``policy`` (a plugin policy: ``IUPEPolicy`` or ``ILPOPolicy``, which both give ``layout``,
+    ``push_history``, ``rollout_actions``, ``averaged_weights`` and ``device_of_weights``) in the env set by
+    ``use_env``, on the layouts set by ``use_layouts``."""
 
     def __init__(self, policy: nn.Module):
         self.policy, self.config = policy, policy.config
@@ -70,7 +72,7 @@ class PolicyRollouts:
             else:
                 rows = torch.as_tensor(active, device=device)
                 history[rows] = policy.push_history(history[rows], obs)
-            actions = policy.pm_head.choose(policy.pm_history_output(history[active]), explore, generator)
+            actions = policy.rollout_actions(history[active], explore, generator)
             actions = actions.cpu().numpy()
             return list(actions) if continuous else [int(a) for a in actions]
 
