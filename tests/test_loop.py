@@ -179,7 +179,7 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
     assert mixed, "no cycle had both successful and failed rollouts: the test would not tell them apart"
     assert all(c["label_non_map"] > 0 for c in policy.cycles)  # labels are draws, not the IDM's argmax
     # rollouts play the expert dataset's own layouts
-    played = {env.unwrapped.layout.layout_id for env in policy.trainer.envs}
+    played = {env.unwrapped.layout.layout_id for env in policy.trainer.rollouts.envs}
     assert played <= set(read_iupe_meta(maze_expert)["layout_ids"])
     # rollouts act by sampling: some actions are not the policy's argmax
     episodes = drawing[-1][2][0]
@@ -270,7 +270,7 @@ def test_rollout_records_state_action_and_next_state_of_the_same_step(cartpole_e
     policy = build(cartpole_expert, cartpole_random)
     policy.forward(frame_batch(cartpole_expert, 16))
     episodes, successes, returns, _ = policy.trainer.rollout(3, seed=4242, explore=True)
-    env = policy.trainer.env_cfg.make()
+    env = policy.trainer.rollouts.env_cfg.make()
     for i, episode in enumerate(episodes):
         observation, _ = env.reset(seed=4242 + i)
         total = 0.0

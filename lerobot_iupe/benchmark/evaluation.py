@@ -70,9 +70,12 @@ DATA_S = re.compile(r"data_s:([\d.]+)")
 
 
 def read_training_run(checkpoint: Path, output: str, steps: int) -> tuple[list[dict], dict]:
-    """The run's cycle records (``iupe_cycles.jsonl`` beside the checkpoint) and its time breakdown."""
-    path = checkpoint / CYCLES_FILE
+    """The run's cycle records (``iupe_cycles.jsonl`` beside the checkpoint; ILPO: its selection points) and its time
+    breakdown."""
+    path, ilpo = checkpoint / CYCLES_FILE, checkpoint / "ilpo_remapping.json"
     cycles = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    if ilpo.exists():  # ILPO's selection points stand for cycles
+        cycles = json.loads(ilpo.read_text())["selection"]
     data_avg = [float(x) for x in DATA_S.findall(output)]  # LeRobot's own per-step data-loading average
     timing = {
         "rollouts_s": cycles[-1].get("rollouts_s", 0.0) if cycles else 0.0,  # none in a supervised run

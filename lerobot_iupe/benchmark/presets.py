@@ -24,13 +24,21 @@ PAPER_TABLE1 = {
             "maze3": (0.883, 0.927), "maze5": (-0.112, 0.104), "maze10": (-0.416, -0.941)},
     "iupe": {"cartpole": (1.135, 500.0), "acrobot": (1.086, -78.1), "mountaincar": (1.314, -130.7),
              "maze3": (1.361, 0.927), "maze5": (1.0, 0.971), "maze10": (1.0, 0.981)},
+    "ilpo": {"cartpole": (1.135, 500.0), "acrobot": (1.067, -85.3), "mountaincar": (0.626, -167.0),
+             "maze3": (-1.711, -0.026), "maze5": (-0.398, -0.059), "maze10": (0.257, -0.020)},
 }  # fmt: skip
 PAPER_TABLE2 = {
     "bco": (-0.416, -0.941), "A": (-0.415, -0.94), "S": (0.534, 0.348), "E": (0.734, 0.605),
     "SA": (0.367, 0.088), "EA": (-0.407, -0.921), "SE": (0.943, 0.901), "iupe": (1.0, 0.981),
 }  # fmt: skip
 ABLATION = ["bco", "A", "S", "E", "SA", "EA", "SE", "iupe"]  # letters: Sampling, Exploration, Attention on
-TABLE1_METHODS = ["expert", "random", "bc", "bco", "iupe"]
+TABLE1_METHODS = ["expert", "random", "bc", "bco", "iupe", "ilpo"]
+# ILPO as the authors train it: the LPN for 100 epochs of batch 32 over the expert's state pairs (lerobot-train's
+# --steps follow from the dataset), then 1,000 remapping env steps with ε = 0.2. It is selected as the other methods
+# are: every 100 remapping steps, 10 episodes of its own played as lerobot-eval plays, the best kept.
+ILPO_EPOCHS, ILPO_BATCH = 100, 32
+ILPO_POLICY = {"selection_episodes": "10", "selection_every": "100"}
+ILPO_QUICK_POLICY = {"selection_episodes": "2", "selection_every": "100", "remap_steps": "200"}
 LOW_DATA_METHODS = ["bco", "S", "E", "SE", "iupe"]
 
 
@@ -224,6 +232,16 @@ LOW_DATA = {
 QUICK_BUDGET = TrainBudget(20, 32, 10, {"rollout_episodes": "4"})
 
 
+def ilpo_steps(pairs: int) -> int:
+    """lerobot-train steps of ILPO's LPN on ``pairs`` expert state pairs: ``ILPO_EPOCHS`` epochs of ``ILPO_BATCH``."""
+    return -(-pairs // ILPO_BATCH) * ILPO_EPOCHS
+
+
+def policy_type(method: str) -> str:
+    """The ``--policy.type`` a method trains: ILPO its own, every other method is the IUPE policy's."""
+    return "ilpo" if method == "ilpo" else "iupe"
+
+
 def mechanisms_on(method: str) -> str:
     """The IUPE mechanisms a method runs with: S (sampling), E (exploration), A (attention); ablation variants
     are named by them, BCO(α) has none, BC is not a cycle."""
@@ -239,7 +257,7 @@ def method_flags(method: str) -> list[str]:
     """lerobot-train flags of a method; ablation variants name the mechanisms that are on."""
     if method == "bc":
         return ["--policy.supervised=true"]
-    if method == "iupe":
+    if method in ("iupe", "ilpo"):
         return []
     on = mechanisms_on(method)
     return [

@@ -20,7 +20,7 @@ from lerobot_iupe.benchmark.presets import (
     PRESETS,
 )
 
-METHOD_NAMES = {"expert": "Expert", "random": "Random", "bc": "BC", "bco": "BCO(α)", "iupe": "IUPE"}
+METHOD_NAMES = {"expert": "Expert", "random": "Random", "bc": "BC", "bco": "BCO(α)", "iupe": "IUPE", "ilpo": "ILPO"}
 ENV_NAMES = {"cartpole": "CartPole", "acrobot": "Acrobot", "mountaincar": "MountainCar", "maze3": "Maze 3×3",
              "maze5": "Maze 5×5", "maze10": "Maze 10×10", "lunarlander": "LunarLander",
              "so101_pickplace": "SO-101 pick-and-place",
@@ -87,6 +87,41 @@ def _table(records, table, envs, methods, layouts, mode, paper=None, cell=_cell)
     return lines
 
 
+REPRODUCE = {
+    table: f"lerobot-iupe-benchmark --tables {table} --jobs 2"
+    for table in ("table1", "ablation", "continuous", "lowdata")
+}
+
+
+def env_steps_table(records: list[dict]) -> list[str]:
+    """Mean env steps per training run, by what took them (rows record ``env_steps`` since the counts exist)."""
+    lines = ["", "## Env steps used in training (mean per run)", ""]
+    lines += [
+        "Every step any method took in an env to train or to choose its checkpoint: the pre-demonstrations it learned "
+        "from (BCO(α), IUPE), its own play (IUPE's rollouts, ILPO's remapping) and the episodes played only to select "
+        "the model. The expert demonstrations and the evaluation are not counted. Runs recorded before the counts "
+        "existed read 'not recorded'.",
+        "",
+        "| table | env | method | runs | pre-demonstrations | rollouts / remapping | selection episodes | total |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    trained = [r for r in _first_rows(records) if r["seed"] is not None]
+    for table, env, method in sorted({(r["table"], r["env"], r["method"]) for r in trained}, key=str):
+        rows = _group(trained, table=table, env=env, method=method)
+        counted = [r["env_steps"] for r in rows if r.get("env_steps")]
+        name = f"| {table} | {ENV_NAMES.get(env, env)} | {METHOD_NAMES.get(method, method)} | {len(rows)} |"
+        if len(counted) < len(rows):
+            lines.append(f"{name} not recorded | | | |")
+            continue
+        mean = {k: float(np.mean([c[k] for c in counted])) for k in counted[0]}
+        total = sum(mean.values())
+        lines.append(
+            f"{name} {mean['pre_demonstrations']:,.0f} | {mean['online']:,.0f} | {mean['selection']:,.0f} "
+            f"| {total:,.0f} |"
+        )
+    return lines
+
+
 def _first_rows(records: list[dict]) -> list[dict]:
     """One row per training run (a run has a row per evaluation layout set and mode)."""
     seen, rows = set(), []
@@ -104,17 +139,13 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
     (out / "results.json").write_text(json.dumps(records, indent=1) + "\n")
     (out / "calls.json").write_text(json.dumps(calls, indent=1) + "\n")
     envs1 = [e for e in PRESETS if _group(records, table="table1", env=e)]
-    methods = ["expert", "random", "bc", "bco", "iupe"]
+    methods = ["expert", "random", "bc", "bco", "iupe", "ilpo"]
     refs = {(r["table"], r["env"], r["eval_layouts"]): (r["R_expert"], r["R_random"]) for r in records}
     lines = [
         "# Benchmark: the paper's Tables 1 and 2 on lerobot_iupe",
         "",
-        "Produced on a 2-core CPU, no GPU, by these calls (in order; each resumes from the runs recorded before):",
-        "",
-        *[
-            f"- `{c['command']}` ({c['seconds'] / 60:.1f} min)" + (f": {c['note']}" if "note" in c else "")
-            for c in calls
-        ],
+        "Produced on a 2-core CPU, no GPU, by `lerobot-iupe-benchmark` (each table names the call that reproduces "
+        "it; every call that produced these records is listed at the end and in calls.json).",
         "",
         "Cells: P / AER, mean ± sample standard deviation (ddof = 1) over training seeds "
         "(expert and random rows: the built-in agents, one evaluation). Evaluation: "
@@ -143,6 +174,7 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
     demo_layouts = lambda e: "demo" if e.startswith("maze") else None  # noqa: E731
     for mode in ("argmax", "sample"):
         lines += ["", f"## Table 1, {mode} evaluation (demonstration layouts for mazes)", ""]
+        lines += [f"Reproduce: `{REPRODUCE['table1']}`", ""]
         lines += _table(records, "table1", envs1, methods, demo_layouts, mode, PAPER_TABLE1)
         if mazes:
             lines += ["", MAZE_SELECTION_NOTE]
@@ -152,6 +184,7 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             lines += _table(records, "table1", mazes, methods, lambda e: "heldout", mode)
     if _group(records, table="ablation"):
         lines += ["", "## Table 2: ablation on Maze 10×10 (S = sampling, E = exploration, A = attention on)", ""]
+        lines += [f"Reproduce: `{REPRODUCE['ablation']}`", ""]
         lines += [
             "| variant | demo layouts, argmax | demo layouts, sample | held-out, argmax | held-out, sample | paper |",
             "|---|---|---|---|---|---|",
@@ -190,6 +223,7 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
     if continuous:
         for mode, rule in (("argmax", "the Gaussian's mode"), ("sample", "a draw from the Gaussian")):
             lines += ["", f"## Continuous actions, {mode} evaluation ({rule}): P / AER", ""]
+            lines += [f"Reproduce: `{REPRODUCE['continuous']}`", ""]
             lines += _table(records, "continuous", continuous, methods, lambda e: None, mode)
             lines += ["", f"Success rate (LeRobot's `is_success`), {mode} evaluation, mean ± std over seeds:", ""]
             lines += _table(records, "continuous", continuous, methods, lambda e: None, mode, cell=_success_cell)
@@ -200,10 +234,13 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
                 "",
                 f"## Low data: 1 expert episode, ~1,000 pre-demonstration transitions ({mode} evaluation)",
                 "",
+                f"Reproduce: `{REPRODUCE['lowdata']}`",
+                "",
             ]
             lines += _table(records, "lowdata", low, LOW_DATA_METHODS, lambda e: None, mode)
         if any(e in CONTINUOUS for e in low):
             lines += ["", f"Continuous envs' low-data rows: {', '.join(LOW_DATA_CONTINUOUS_METHODS)} only."]
+    lines += env_steps_table(records)
     lines += ["", "## How each checkpoint was selected (the rule each row records)", ""]
     by_rule: dict[str, list[str]] = {}
     for r in _first_rows([r for r in records if r["seed"] is not None]):
@@ -242,6 +279,9 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
               "included)."]  # fmt: skip
     plots = plot_results(records, out)
     lines += ["", "## Plots", "", *[f"![{p.stem}]({p.name})" for p in plots]]
+    lines += ["", "## The calls that produced these records (in order; each resumed from the runs before it)", ""]
+    lines += [f"- `{c['command']}` ({c['seconds'] / 60:.1f} min)" for c in calls]
+    lines += ["", "What each call ran, and on what it shared the CPU: calls.json (`note`)."]
     (out / "results.md").write_text("\n".join(lines) + "\n")
     return [out / "results.md", out / "results.json", out / "calls.json", *plots]
 

@@ -28,8 +28,8 @@ import torch
 from tqdm.auto import tqdm
 
 from lerobot_iupe.benchmark.evaluation import evaluate_agent, evaluate_checkpoint, read_training_run
-from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest
-from lerobot_iupe.benchmark.runs import Run, agent_config_key, selection_rule
+from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, policy_type
+from lerobot_iupe.benchmark.runs import Run, agent_config_key, selection_rule, training_env_steps
 from lerobot_iupe.policy.algorithm import performance
 
 BIN = Path(sys.executable).parent
@@ -315,7 +315,7 @@ class Benchmark:
         if not self.quiet:
             print(f"[benchmark] {run.table} {run.name} {run.method} seed={run.seed}", flush=True)
         preset, episodes = run.preset, self.eval_episodes
-        train_seconds, cycles, timing = 0.0, [], {}
+        train_seconds, cycles, timing, env_steps = 0.0, [], {}, None
         selection = "none: the built-in agent"
         if run.method in ("expert", "random"):
             evals = {(lay, None): self.agent_evaluation(run.method, preset, lay) for lay in preset.layouts}
@@ -323,19 +323,23 @@ class Benchmark:
             out = self.work / "runs" / run.table / run.name / f"{run.method}-s{run.seed}"
             shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
             expert = run.data["expert-actions" if run.method == "bc" else "expert"]
+            pre_demos = [] if run.method == "ilpo" else [  # ILPO learns from the expert's states alone
+                f"--policy.pre_demos_repo_id=local/{run.data['random'].name}",
+                f"--policy.pre_demos_root={run.data['random']}",
+            ]  # fmt: skip
             start = time.perf_counter()
             output = run_cli(
-                "lerobot-train", "--policy.type=iupe", f"--dataset.repo_id=local/{expert.name}",
-                f"--dataset.root={expert}", "--dataset.video_backend=pyav",
-                f"--policy.pre_demos_repo_id=local/{run.data['random'].name}",
-                f"--policy.pre_demos_root={run.data['random']}", f"--output_dir={out}", "--policy.device=cpu",
+                "lerobot-train", f"--policy.type={policy_type(run.method)}", f"--dataset.repo_id=local/{expert.name}",
+                f"--dataset.root={expert}", "--dataset.video_backend=pyav", *pre_demos,
+                f"--output_dir={out}", "--policy.device=cpu",
                 "--num_workers=0", "--wandb.enable=false", "--save_freq=1000000", "--log_freq=25",
-                f"--seed={run.seed}", *run.train_flags,
+                f"--seed={run.seed}", *run.train_flags, f"--steps={run.steps}",
                 log=out.with_suffix(".log"), quiet=self.quiet, threads=threads,
-                steps=run.budget.steps, label=f"train {run.method} {run.name} seed {run.seed}",
+                steps=run.steps, label=f"train {run.method} {run.name} seed {run.seed}",
             )  # fmt: skip
             train_seconds = time.perf_counter() - start
-            cycles, timing = read_training_run(out / CHECKPOINT, output, run.budget.steps)
+            cycles, timing = read_training_run(out / CHECKPOINT, output, run.steps)
+            env_steps = training_env_steps(run, out / CHECKPOINT, cycles)
             selection = selection_rule(run, out / CHECKPOINT, cycles)
             evals = {}
             # One evaluation at a time: it seeds the process-wide RNGs, which concurrent evaluations would share.
@@ -359,6 +363,6 @@ class Benchmark:
                         "selection": selection, "train_seconds": train_seconds,
                         "eval_episodes": preset.scored_episodes(lay, episodes), "R_expert": r_expert,
                         "R_random": r_random,
-                        "timing": timing, "cycles": cycles,
+                        "timing": timing, "cycles": cycles, "env_steps": env_steps,
                     }
                 )  # fmt: skip

@@ -8,7 +8,18 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lerobot_iupe.benchmark.evaluation import EVAL_SEED
-from lerobot_iupe.benchmark.presets import QUICK_BUDGET, EnvPreset, digest, method_flags, samples
+from lerobot_iupe.benchmark.presets import (
+    ILPO_BATCH,
+    ILPO_EPOCHS,
+    ILPO_POLICY,
+    ILPO_QUICK_POLICY,
+    QUICK_BUDGET,
+    EnvPreset,
+    digest,
+    ilpo_steps,
+    method_flags,
+    samples,
+)
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 
 
@@ -44,7 +55,21 @@ class Run:
 
     @property
     def train_flags(self) -> list[str]:
+        """lerobot-train's flags of the method's budget (ILPO: all but --steps, which its data sets: ``steps``)."""
+        if self.method == "ilpo":
+            policy = dict(ILPO_QUICK_POLICY if self.quick else ILPO_POLICY)
+            if self.preset.rollout_layouts and not self.quick:
+                policy["rollout_layouts"] = str(self.preset.rollout_layouts)
+            return [f"--batch_size={ILPO_BATCH}", *[f"--policy.{k}={v}" for k, v in policy.items()]]
         return [*self.budget.flags(samples(self.method)), *method_flags(self.method)]
+
+    @property
+    def steps(self) -> int:
+        """lerobot-train's --steps: the budget's; ILPO's from the expert dataset (``ilpo_steps``)."""
+        if self.method != "ilpo" or self.quick:
+            return self.budget.steps
+        info = json.loads((self.data["expert"] / "meta" / "info.json").read_text())
+        return ilpo_steps(info["total_frames"] - info["total_episodes"])
 
     @property
     def budget(self):
@@ -54,13 +79,14 @@ class Run:
         """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
         if self.method in ("expert", "random"):
             return agent_config_key(self.preset, self.quick, eval_episodes)
-        return config_key(self.preset, self.quick, self.train_flags, eval_episodes, self.plays_selection_episodes)
+        flags = self.train_flags + ([f"ilpo epochs {ILPO_EPOCHS}"] if self.method == "ilpo" else [])
+        return config_key(self.preset, self.quick, flags, eval_episodes, self.plays_selection_episodes)
 
     @property
     def plays_selection_episodes(self) -> bool:
         """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default; BC when
         the preset gives selection episodes)."""
-        if self.method in ("expert", "random"):
+        if self.method in ("expert", "random", "ilpo"):
             return False
         policy = dict(f.removeprefix("--policy.").split("=", 1) for f in self.train_flags if f.startswith("--policy."))
         config = IUPEConfig(  # the config's own rule, from the settings it depends on
@@ -84,6 +110,18 @@ class Run:
 
 def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
     """How a run's checkpoint was chosen, in words (recorded with each of its rows)."""
+    if run.method == "ilpo":
+        if not cycles:
+            return "ILPO: the final remapping network (no selection)"
+        played = (
+            "a draw" if json.loads((checkpoint / "config.json").read_text())["eval_mode"] == "sample" else "the mode"
+        )
+        return (
+            f"ILPO: the remapping network of the best of {len(cycles)} points (every "
+            f"{cycles[1]['step'] - cycles[0]['step'] if len(cycles) > 1 else cycles[0]['step']} remapping steps) on "
+            f"{cycles[0]['selection_episodes']} episodes of its own played by {played}, the same start seeds each "
+            "time (the env's success, then the goal), latest on ties"
+        )
     if not cycles:
         return "the last step's weights (no selection)"
     config = json.loads((checkpoint / "config.json").read_text())
@@ -107,3 +145,21 @@ def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
         f"best rollout success of a cycle ({rule}{len(cycles)} cycles × {episodes} episodes, latest on ties), "
         f"on {where}"
     )
+
+
+def training_env_steps(run: Run, checkpoint: Path, cycles: list[dict]) -> dict[str, int] | None:
+    """The env steps a run cost, by what took them: the pre-demonstrations it learned from (IUPE, BCO(α)), its own
+    online play (IUPE's rollouts, ILPO's remapping) and the episodes played only to select the model. None where
+    the cycle records predate the counts."""
+    pre = 0
+    if run.method not in ("bc", "ilpo"):
+        pre = json.loads((run.data["random"] / "meta" / "info.json").read_text())["total_frames"]
+    if run.method == "ilpo":
+        summary = json.loads((checkpoint / "ilpo_remapping.json").read_text())
+        online, selection = summary["remap_env_steps"], summary["selection_env_steps"]
+    else:
+        if cycles and any("selection_env_steps" not in c for c in cycles):
+            return None
+        online = sum(c.get("rollout_env_steps", 0) for c in cycles)
+        selection = sum(c.get("selection_env_steps", 0) for c in cycles)
+    return {"pre_demonstrations": pre, "online": online, "selection": selection}

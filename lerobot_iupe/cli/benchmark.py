@@ -1,4 +1,4 @@
-"""lerobot-iupe-benchmark: the paper's Table 1 (Expert, Random, BC, BCO(α), IUPE on CartPole, Acrobot,
+"""lerobot-iupe-benchmark: the paper's Table 1 (Expert, Random, BC, BCO(α), IUPE, ILPO on CartPole, Acrobot,
 MountainCar, Maze 3×3/5×5/10×10), its Table 2 (the ablation on Maze 10×10) and a low-data table.
 
 Each trained method goes through `lerobot-train`; evaluation is LeRobot's own (`eval_policy_all`, as in
@@ -52,7 +52,11 @@ def main() -> None:
         "--envs", nargs="+", default=[*PRESETS, *CONTINUOUS], choices=[*PRESETS, *CONTINUOUS],
         help="envs of every table (Table 1 and the ablation: %(default)s minus the continuous ones)",
     )  # fmt: skip
-    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS, help="Table 1 methods")
+    parser.add_argument(
+        "--methods", nargs="+", choices=METHODS,
+        help=f"methods of Table 1 and the continuous table (default: {' '.join(METHODS)}; the continuous table runs "
+        "ILPO only when named here)",
+    )  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
     parser.add_argument(
         "--jobs", type=positive_int, default=1,
@@ -73,6 +77,8 @@ def main() -> None:
         "to a learner, whose runs' configuration is otherwise unchanged; their old records are dropped",
     )  # fmt: skip
     args = parser.parse_args()
+    continuous_methods = args.methods or [m for m in METHODS if m != "ilpo"]
+    args.methods = args.methods or METHODS
     if args.from_dir and not (Path(args.from_dir) / "results.json").exists():
         parser.error(f"--from: {args.from_dir} holds no results.json (a benchmark call's --out, e.g. benchmarks)")
     if args.quick:
@@ -95,11 +101,12 @@ def main() -> None:
         if "continuous" in args.tables:
             for env, preset in CONTINUOUS.items():
                 if env in args.envs:
-                    methods = preset.compared(args.methods)
+                    methods = preset.compared(continuous_methods)
                     requests.append(dict(table="continuous", name=env, preset=preset, methods=methods))
             for env in (e for e in LOW_DATA if e in CONTINUOUS and e in args.envs):
                 preset = LOW_DATA[env]
-                requests.append(dict(table="lowdata", name=env, preset=preset, methods=preset.compared(args.methods)))
+                methods = preset.compared(continuous_methods)
+                requests.append(dict(table="lowdata", name=env, preset=preset, methods=methods))
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))

@@ -100,32 +100,22 @@ class IUPETrainer:
             )
         for key in cfg.observation_keys:
             pre_spec = dataset_spec(pre.meta, key, f"the pre-demonstrations {cfg.pre_demos_repo_id}")
-            check_compatible(env_spec(self.env_cfg, key), pre_spec)
+            check_compatible(env_spec(self.rollouts.env_cfg, key), pre_spec)
         continuous_actions = pre.meta.features[ACTION]["dtype"].startswith("float")
         if continuous_actions != cfg.is_continuous:
             kind = {True: "continuous", False: "discrete"}
             raise ValueError(
                 f"the pre-demonstrations {cfg.pre_demos_repo_id} have {kind[continuous_actions]} actions but env "
-                f"{self.env_cfg.type} has {kind[cfg.is_continuous]} ones"
+                f"{self.rollouts.env_cfg.type} has {kind[cfg.is_continuous]} ones"
             )
         self.use_layouts()
         return pre
 
     def use_layouts(self) -> None:
-        """Mazes: the expert dataset's layouts that rollouts and selection episodes play (the last K of them)."""
-        self.rollouts.use_layouts(self.dataset_meta)
+        self.rollouts.use_layouts(self.dataset_meta)  # mazes: the layouts rollouts and selection episodes play
 
     def use_env(self, env_cfg) -> None:
-        """Roll out in ``env_cfg`` (any LeRobot env type whose ``features_map`` gives the policy's observations)."""
         self.rollouts.use_env(env_cfg)
-
-    @property
-    def env_cfg(self):
-        return self.rollouts.env_cfg
-
-    @property
-    def envs(self) -> list:
-        return self.rollouts.envs
 
     def start(self) -> None:
         cfg = self.config
@@ -143,7 +133,7 @@ class IUPETrainer:
         self.state = state = self.new_state(rank, pre, pre_held, size, idm_optimizer)
         log.info(
             f"IUPE: {len(pre) + len(pre_held)} pre-demonstration transitions ({len(pre_held)} held out to score "
-            f"the IDM), I^s size {size}, env {self.env_cfg.type}"
+            f"the IDM), I^s size {size}, env {self.rollouts.env_cfg.type}"
         )
         if self.resumed():
             return
@@ -302,6 +292,8 @@ class IUPETrainer:
             "sampled_set_size": len(sampled),
             "idm_held_out": len(held),
             "successful_transitions": int(sum(len(e) for e in good)),
+            "rollout_env_steps": int(sum(len(e) for e in episodes)),
+            "selection_env_steps": judged.get("env_steps", 0),
             self.idm_metric: self.stats[self.idm_metric],
             "label_non_map": self.stats.get("label_non_map", 0.0),
             "rollouts_s": state.rollouts_s,
@@ -336,6 +328,7 @@ class IUPETrainer:
                 "selection_goal_rate": judged["goal"],
                 "selected": selected,
                 "best_success": state.best_success,
+                "selection_env_steps": judged["env_steps"],
                 "selection_s": state.selection_s,
             }
         )
@@ -358,8 +351,9 @@ class IUPETrainer:
         """The goal and env-success rates of ``episodes`` played as lerobot-eval plays (``eval_mode``), from the
         same start seeds every cycle (apart from the rollouts' and the benchmark's evaluation seeds)."""
         sample = self.config.eval_mode == "sample"
-        _, goals, _, env_successes = self.rollout(episodes, self.episode_seeds + 50_000, explore=sample)
-        return {"goal": float(goals.mean()), "env": float(env_successes.mean())}
+        played, goals, _, env_successes = self.rollout(episodes, self.episode_seeds + 50_000, explore=sample)
+        steps = sum(len(e) for e in played)
+        return {"goal": float(goals.mean()), "env": float(env_successes.mean()), "env_steps": steps}
 
     @property
     def episode_seeds(self) -> int:
