@@ -2,7 +2,8 @@
 
 1. every step (``ILPOPolicy.forward``): one LPN step on expert pairs; which latent action wins each pair and how π
    spreads over them are counted, so that a collapse onto few latent actions shows in the logs;
-2. after lerobot-train's last step (``step_done``): ``remap`` — the LPN frozen, ``remap_steps`` env steps, each
+2. after lerobot-train's last step (``step_done``): ``remap`` — the LPN frozen, a fresh ARN drawn from the run's
+   seed, ``remap_steps`` env steps, each
    acting greedily (argmax_z π, then the ARN's action) or, with probability ``remap_epsilon``, uniformly at random;
    each transition labelled with z* (the latent action that explains it best) into a replay buffer, and one ARN
    step on a batch from it per env step once it holds a batch.
@@ -25,6 +26,7 @@ from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
 from lerobot_iupe.data.readers import ExpertFrames
 from lerobot_iupe.data.video import default_video_backend
 from lerobot_iupe.envs.configs import env_config_from_settings, make_envs
+from lerobot_iupe.ilpo.latent_model import ActionRemappingNetwork
 from lerobot_iupe.policy.algorithm import selects
 from lerobot_iupe.policy.rollouts import PolicyRollouts
 from lerobot_iupe.policy.train_run import lerobot_train_config, resuming
@@ -32,6 +34,17 @@ from lerobot_iupe.policy.train_run import lerobot_train_config, resuming
 log = logging.getLogger("lerobot_iupe")
 STATE_FILE = "ilpo_training_state.pt"
 SUMMARY_FILE = "ilpo_remapping.json"
+
+
+def arn_step(arn: nn.Module, optimizer: torch.optim.Optimizer, frames: Tensor, z: Tensor, actions: Tensor) -> float:
+    """One step of the action remapping network on (s, z*) → the executed action (its head's loss)."""
+    arn.train()
+    loss = arn.head.loss(arn(frames, z), actions)
+    optimizer.zero_grad()
+    loss.backward()
+    optimizer.step()
+    arn.eval()
+    return float(loss.detach())
 
 
 class ILPOTrainer:
@@ -101,6 +114,12 @@ class ILPOTrainer:
         env = make_envs(env_cfg, 1)[0]
         device = policy.device_of_weights
         rng = np.random.default_rng([self.seed, 2])
+        # A fresh ARN drawn from the run's seed: the remapping then depends on the LPN and the seed alone, so a
+        # finished run extended with --resume=true remaps as the longer run would have.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(self.seed % 2**62 + 2)
+            policy.arn.load_state_dict(ActionRemappingNetwork(cfg).state_dict())
+        self.selected_arn = None
         arn_optimizer = torch.optim.Adam(policy.arn.parameters(), lr=cfg.remap_lr)
         size = min(cfg.remap_buffer_size, cfg.remap_steps)
         buffer_frames = torch.zeros(size, policy.layout.size, device=device)
@@ -145,12 +164,7 @@ class ILPOTrainer:
             stored += 1
             if stored >= cfg.remap_batch_size:
                 batch = torch.as_tensor(rng.integers(min(stored, size), size=cfg.remap_batch_size), device=device)
-                policy.arn.train()
-                loss = policy.arn.head.loss(policy.arn(buffer_frames[batch], buffer_z[batch]), buffer_actions[batch])
-                arn_optimizer.zero_grad()
-                loss.backward()
-                arn_optimizer.step()
-                policy.arn.eval()
+                arn_step(policy.arn, arn_optimizer, buffer_frames[batch], buffer_z[batch], buffer_actions[batch])
             frames = reset() if terminated or truncated else next_frames
             if cfg.selection_episodes and (t + 1) % cfg.selection_every == 0:
                 record, played = self.select(t + 1, first_seed + 50_000, best)
