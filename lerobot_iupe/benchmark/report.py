@@ -20,7 +20,15 @@ from lerobot_iupe.benchmark.presets import (
     PRESETS,
 )
 
-METHOD_NAMES = {"expert": "Expert", "random": "Random", "bc": "BC", "bco": "BCO(α)", "iupe": "IUPE", "ilpo": "ILPO"}
+METHOD_NAMES = {
+    "expert": "Expert",
+    "random": "Random",
+    "bc": "BC",
+    "bco": "BCO(α)",
+    "iupe": "IUPE",
+    "ilpo": "ILPO",
+    "ilpo_norm": "ILPO, normalised (deviation)",
+}
 ENV_NAMES = {"cartpole": "CartPole", "acrobot": "Acrobot", "mountaincar": "MountainCar", "maze3": "Maze 3×3",
              "maze5": "Maze 5×5", "maze10": "Maze 10×10", "lunarlander": "LunarLander",
              "so101_pickplace": "SO-101 pick-and-place",
@@ -139,7 +147,7 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
     (out / "results.json").write_text(json.dumps(records, indent=1) + "\n")
     (out / "calls.json").write_text(json.dumps(calls, indent=1) + "\n")
     envs1 = [e for e in PRESETS if _group(records, table="table1", env=e)]
-    methods = ["expert", "random", "bc", "bco", "iupe", "ilpo"]
+    methods = ["expert", "random", "bc", "bco", "iupe", "ilpo", "ilpo_norm"]
     refs = {(r["table"], r["env"], r["eval_layouts"]): (r["R_expert"], r["R_random"]) for r in records}
     lines = [
         "# Benchmark: the paper's Tables 1 and 2 on lerobot_iupe",
@@ -326,14 +334,14 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
     ]
     envs = [e for e in PRESETS if _group(table1, env=e)]
     if envs:
-        methods = ["bc", "bco", "iupe"]
-        fig, ax = plt.subplots(figsize=(max(6, 2 * len(envs)), 4))
-        width = 0.13
+        methods = ["bc", "bco", "iupe", "ilpo"]
+        fig, ax = plt.subplots(figsize=(max(6, 2.5 * len(envs)), 4))
+        width = 0.1
         for i, method in enumerate(methods):
             ours = [_group(table1, env=e, method=method) for e in envs]
             mean = [np.mean([r["P"] for r in rows]) if rows else np.nan for rows in ours]
             std = [np.std([r["P"] for r in rows], ddof=1) if len(rows) > 1 else 0 for rows in ours]
-            x = np.arange(len(envs)) + (2 * i - 2.5) * width
+            x = np.arange(len(envs)) + (2 * i - 3.5) * width
             ax.bar(x, mean, width, yerr=std, label=f"{METHOD_NAMES[method]} (ours)", color=f"C{i}")
             paper = [PAPER_TABLE1[method][e][0] for e in envs]
             ax.bar(x + width, paper, width, label=f"{METHOD_NAMES[method]} (paper)", color=f"C{i}", alpha=0.4,
@@ -341,7 +349,7 @@ def plot_results(records: list[dict], out: Path) -> list[Path]:
         ax.axhline(1.0, color="k", lw=0.8, ls="--")
         ax.set_xticks(np.arange(len(envs)), [ENV_NAMES.get(e, e) for e in envs])
         ax.set_ylabel("P (1 = expert, 0 = random)")
-        ax.legend(fontsize=7, ncol=3)
+        ax.legend(fontsize=7, ncol=4)
         fig.tight_layout()
         paths.append(out / "performance.png")
         fig.savefig(paths[-1], dpi=90)

@@ -323,7 +323,7 @@ class Benchmark:
             out = self.work / "runs" / run.table / run.name / f"{run.method}-s{run.seed}"
             shutil.rmtree(out, ignore_errors=True)  # an interrupted, unrecorded run: lerobot-train refuses it
             expert = run.data["expert-actions" if run.method == "bc" else "expert"]
-            pre_demos = [] if run.method == "ilpo" else [  # ILPO learns from the expert's states alone
+            pre_demos = [] if policy_type(run.method) == "ilpo" else [  # ILPO learns from the expert's states alone
                 f"--policy.pre_demos_repo_id=local/{run.data['random'].name}",
                 f"--policy.pre_demos_root={run.data['random']}",
             ]  # fmt: skip

@@ -13,6 +13,7 @@ from lerobot_iupe.benchmark.presets import (
     ILPO_EPOCHS,
     ILPO_POLICY,
     ILPO_QUICK_POLICY,
+    ILPO_VARIANTS,
     QUICK_BUDGET,
     EnvPreset,
     digest,
@@ -56,8 +57,8 @@ class Run:
     @property
     def train_flags(self) -> list[str]:
         """lerobot-train's flags of the method's budget (ILPO: all but --steps, which its data sets: ``steps``)."""
-        if self.method == "ilpo":
-            policy = dict(ILPO_QUICK_POLICY if self.quick else ILPO_POLICY)
+        if self.method in ILPO_VARIANTS:
+            policy = {**(ILPO_QUICK_POLICY if self.quick else ILPO_POLICY), **ILPO_VARIANTS[self.method]}
             if self.preset.rollout_layouts and not self.quick:
                 policy["rollout_layouts"] = str(self.preset.rollout_layouts)
             return [f"--batch_size={ILPO_BATCH}", *[f"--policy.{k}={v}" for k, v in policy.items()]]
@@ -66,7 +67,7 @@ class Run:
     @property
     def steps(self) -> int:
         """lerobot-train's --steps: the budget's; ILPO's from the expert dataset (``ilpo_steps``)."""
-        if self.method != "ilpo" or self.quick:
+        if self.method not in ILPO_VARIANTS or self.quick:
             return self.budget.steps
         info = json.loads((self.data["expert"] / "meta" / "info.json").read_text())
         return ilpo_steps(info["total_frames"] - info["total_episodes"])
@@ -79,14 +80,14 @@ class Run:
         """Hash of everything that determines this run's rows: datasets, training flags, evaluation."""
         if self.method in ("expert", "random"):
             return agent_config_key(self.preset, self.quick, eval_episodes)
-        flags = self.train_flags + ([f"ilpo epochs {ILPO_EPOCHS}"] if self.method == "ilpo" else [])
+        flags = self.train_flags + ([f"ilpo epochs {ILPO_EPOCHS}"] if self.method in ILPO_VARIANTS else [])
         return config_key(self.preset, self.quick, flags, eval_episodes, self.plays_selection_episodes)
 
     @property
     def plays_selection_episodes(self) -> bool:
         """Whether the run selects its model on episodes of its own (its rollouts explore: IUPE's default; BC when
         the preset gives selection episodes)."""
-        if self.method in ("expert", "random", "ilpo"):
+        if self.method in ("expert", "random", *ILPO_VARIANTS):
             return False
         policy = dict(f.removeprefix("--policy.").split("=", 1) for f in self.train_flags if f.startswith("--policy."))
         config = IUPEConfig(  # the config's own rule, from the settings it depends on
@@ -110,7 +111,7 @@ class Run:
 
 def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
     """How a run's checkpoint was chosen, in words (recorded with each of its rows)."""
-    if run.method == "ilpo":
+    if run.method in ILPO_VARIANTS:
         if not cycles:
             return "ILPO: the final remapping network (no selection)"
         played = (
@@ -152,9 +153,9 @@ def training_env_steps(run: Run, checkpoint: Path, cycles: list[dict]) -> dict[s
     online play (IUPE's rollouts, ILPO's remapping) and the episodes played only to select the model. None where
     the cycle records predate the counts."""
     pre = 0
-    if run.method not in ("bc", "ilpo"):
+    if run.method != "bc" and run.method not in ILPO_VARIANTS:
         pre = json.loads((run.data["random"] / "meta" / "info.json").read_text())["total_frames"]
-    if run.method == "ilpo":
+    if run.method in ILPO_VARIANTS:
         summary = json.loads((checkpoint / "ilpo_remapping.json").read_text())
         online, selection = summary["remap_env_steps"], summary["selection_env_steps"]
     else:

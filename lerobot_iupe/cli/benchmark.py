@@ -55,7 +55,7 @@ def main() -> None:
     parser.add_argument(
         "--methods", nargs="+", choices=METHODS,
         help=f"methods of Table 1 and the continuous table (default: {' '.join(METHODS)}; the continuous table runs "
-        "ILPO only when named here)",
+        "ILPO (ilpo: as the authors' code; ilpo_norm: with --policy.normalize=true) only when named here)",
     )  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
     parser.add_argument(
@@ -77,7 +77,7 @@ def main() -> None:
         "to a learner, whose runs' configuration is otherwise unchanged; their old records are dropped",
     )  # fmt: skip
     args = parser.parse_args()
-    continuous_methods = args.methods or [m for m in METHODS if m != "ilpo"]
+    continuous_methods = args.methods or [m for m in METHODS if not m.startswith("ilpo")]
     args.methods = args.methods or METHODS
     if args.from_dir and not (Path(args.from_dir) / "results.json").exists():
         parser.error(f"--from: {args.from_dir} holds no results.json (a benchmark call's --out, e.g. benchmarks)")

@@ -27,6 +27,11 @@ class ILPOConfig(ObservationPolicyConfig):
     # The LPN's Adam (LeRobot's optimizer): learning rate and β1 (the authors' 2e-4 and 0.5).
     optimizer_lr: float = 2e-4
     optimizer_beta1: float = 0.5
+    # A deviation from the authors' code, off by default: the networks read vector states normalised by the
+    # dataset's mean and std, and the generator predicts each value's difference divided by its std over the
+    # expert's pairs (z* is then chosen in that scaled space). Raw, a value that changes little per step (a
+    # velocity) weighs nothing in the summed squared error (docs/ilpo.md measures it).
+    normalize: bool = False
     # Online remapping: env steps (each followed by one ARN step once the buffer holds a batch), the share of
     # uniformly random actions taken meanwhile, the ARN's Adam learning rate, batch and replay-buffer size.
     remap_steps: int = 1000

@@ -37,6 +37,18 @@ class ILPOPolicy(PreTrainedPolicy):
         for i, is_camera in enumerate(self.layout.visual):
             visual[self.layout.columns(i)] = is_camera
         self.register_buffer("visual_columns", visual, persistent=False)
+        # --policy.normalize: vector values by the dataset's stats, differences by their std over the expert's
+        # pairs (set when training starts); saved, so that acting reads states as training did.
+        self.register_buffer("state_mean", torch.zeros(self.layout.size))
+        self.register_buffer("state_std", torch.ones(self.layout.size))
+        self.register_buffer("difference_std", torch.ones(self.layout.size))
+        if config.normalize and dataset_stats:
+            for i, key in enumerate(config.observation_keys):
+                if not self.layout.visual[i] and key in dataset_stats:
+                    columns = self.layout.columns(i)
+                    self.state_mean[columns] = torch.as_tensor(dataset_stats[key]["mean"]).float().reshape(-1)
+                    self.state_std[columns] = torch.as_tensor(dataset_stats[key]["std"]).float().reshape(-1)
+            self.state_std.clamp_(min=1e-6)
         self.dataset_meta = dataset_meta
         # lerobot-train seeds torch with its --seed just before building the policy: that seed drives ILPO's own
         # streams unless --policy.seed is given.
@@ -50,11 +62,26 @@ class ILPOPolicy(PreTrainedPolicy):
         frames = frames.reshape(len(frames), -1)
         if frames.dtype == torch.uint8:
             return frames.float() / 255.0
+        if self.config.normalize:
+            return (frames.float() - self.state_mean) / self.state_std
         return frames.float()
+
+    def difference(self, frames: Tensor, next_frames: Tensor) -> Tensor:
+        """What the generator predicts of a transition: s_{t+1} − s_t (``normalize``: over its std per value)."""
+        delta = next_frames - frames
+        return delta / self.difference_std if self.config.normalize else delta
+
+    @torch.no_grad()
+    def fit_difference_scale(self, frames: Tensor, next_frames: Tensor) -> None:
+        """``normalize``: each value's std of s_{t+1} − s_t over these pairs, in normalised state units."""
+        delta = self.flat(next_frames) - self.flat(frames)
+        self.difference_std.copy_(delta.std(dim=0).clamp_min(1e-6))
 
     def predicted_next(self, frames: Tensor) -> Tensor:
         """ŝ^z = s + G(s, z) for every z (B, Z, size); camera values kept in [0, 1]."""
         _, predicted = self.lpn(frames)
+        if self.config.normalize:
+            predicted = predicted * self.difference_std
         candidates = frames.unsqueeze(1) + predicted
         if self.layout.fused or self.config.is_image:
             candidates = torch.where(self.visual_columns, candidates.clamp(0.0, 1.0), candidates)
@@ -64,6 +91,8 @@ class ILPOPolicy(PreTrainedPolicy):
     def explaining_latents(self, frames: Tensor, next_frames: Tensor) -> Tensor:
         """z* of each transition: the latent action whose predicted next state is nearest the real one — in state
         space for vectors, in E_p's embedding for cameras (as the authors compare images)."""
+        if not self.config.is_image and self.config.normalize:  # nearest in the scaled differences
+            return best_latent(self.difference(frames, next_frames), self.lpn(frames)[1])
         candidates = self.predicted_next(frames)
         if not self.config.is_image:
             return best_latent(next_frames, candidates)
@@ -84,7 +113,7 @@ class ILPOPolicy(PreTrainedPolicy):
     def lpn_losses(self, frames: Tensor, next_frames: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """L_min, L_exp, the winning z per sample and π (B, Z) on a batch of expert pairs."""
         logits, predicted = self.lpn(frames)
-        delta = next_frames - frames
+        delta = self.difference(frames, next_frames)
         l_min, winners = min_latent_loss(delta, predicted)
         probabilities = torch.softmax(logits, dim=-1)
         return l_min, expected_state_loss(delta, predicted, probabilities), winners, probabilities

@@ -79,7 +79,14 @@ class ILPOTrainer:
                 dataset, self.config.observation_keys, False, device, self.config.layout, default_video_backend()
             )
             log.info(f"ILPO: expert dataset ready, {len(self._expert.episodes)} frames")
+            if self.config.normalize and not self.config.is_image:
+                self.scale_differences(self._expert)
         return self._expert
+
+    def scale_differences(self, expert: ExpertFrames) -> None:
+        """``normalize``: each value's std of s_{t+1} − s_t over the expert's pairs (normalised states)."""
+        rows = np.flatnonzero(expert.episodes[:-1] == expert.episodes[1:])
+        self.policy.fit_difference_scale(expert.states[rows], expert.states[rows + 1])
 
     def count_latents(self, winners: Tensor, probabilities: Tensor) -> None:
         """Tally which latent action explains each expert pair best and π's mass on each."""
