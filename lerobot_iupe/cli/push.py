@@ -17,6 +17,7 @@ from lerobot_iupe.hub import push_dataset
 @dataclass
 class PushConfig:
     dataset: DatasetTarget = field(default_factory=DatasetTarget)
+    # The license the dataset card declares (a hub license id).
     license: str = "apache-2.0"
 
 

@@ -25,9 +25,11 @@ from lerobot_iupe.errors import CommandError
 class DatasetTarget:
     """``--dataset.*`` of the package's commands: which dataset to write, relabel or push."""
 
+    # The dataset's repo id (owner/name; "local/<name>" for a dataset that stays on disk).
     repo_id: str = "local/iupe-demos"
     # Local directory of the dataset; defaults to $HF_LEROBOT_HOME/<repo_id>.
     root: str | None = None
+    # Create the hub repository as private when pushing.
     private: bool = False
 
 

@@ -24,25 +24,30 @@ class ILPOConfig(ObservationPolicyConfig):
     embedding_width: int = 128
     # Image encoders' base channel count (the package's residual CNN; --policy.image_backbone picks it).
     cnn_width: int = 16
-    # The LPN's Adam (LeRobot's optimizer): learning rate and β1 (the authors' 2e-4 and 0.5).
+    # The LPN's Adam learning rate (LeRobot's optimizer; the authors' 2e-4).
     optimizer_lr: float = 2e-4
+    # The LPN's Adam β1 (the authors' 0.5).
     optimizer_beta1: float = 0.5
     # A deviation from the authors' code, off by default: the networks read vector states normalised by the
     # dataset's mean and std, and the generator predicts each value's difference divided by its std over the
     # expert's pairs (z* is then chosen in that scaled space). Raw, a value that changes little per step (a
     # velocity) weighs nothing in the summed squared error (docs/ilpo.md measures it).
     normalize: bool = False
-    # Online remapping: env steps (each followed by one ARN step once the buffer holds a batch), the share of
-    # uniformly random actions taken meanwhile, the ARN's Adam learning rate, batch and replay-buffer size.
+    # Env steps of the online remapping, each followed by one ARN step once the buffer holds a batch.
     remap_steps: int = 1000
+    # Share of uniformly random real actions while remapping (the authors' 0.2, constant).
     remap_epsilon: float = 0.2
+    # The ARN's Adam learning rate.
     remap_lr: float = 2e-3
+    # The ARN's batch, drawn uniformly from the replay buffer.
     remap_batch_size: int = 32
+    # The replay buffer's size (first in, first out).
     remap_buffer_size: int = 50_000
     # Keep the ARN that played best: every selection_every remapping steps, play selection_episodes episodes as
     # lerobot-eval plays them (eval_mode) from the same start seeds, keep the best by the env's success, then the
     # goal (as the IUPE cycle selects). 0 = the final ARN, as the authors' code keeps it.
     selection_episodes: int = 0
+    # Remapping steps between two selections (with selection_episodes > 0).
     selection_every: int = 100
 
     def __post_init__(self):

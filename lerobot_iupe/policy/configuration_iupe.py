@@ -24,18 +24,22 @@ class IUPEConfig(ObservationPolicyConfig):
     ``supervised=true`` trains the policy (the BC baseline) and the IDM on the dataset's true actions: no env, no
     pre-demonstrations, and a checkpoint ``lerobot-iupe-relabel`` takes."""
 
-    # Random pre-demonstrations (with actions) that train the inverse dynamics model first.
+    # Random pre-demonstrations (with actions) that train the inverse dynamics model first: their repo id.
     pre_demos_repo_id: str | None = None
+    # Local directory of the pre-demonstrations; None = $HF_LEROBOT_HOME/<pre_demos_repo_id> (or the hub).
     pre_demos_root: str | None = None
-    # The three mechanisms of the paper.
+    # Sampling, the paper's first mechanism: the IDM retrains on a set rebuilt from the successful rollouts.
     sampling: bool = True
     # The largest share of I^s that sampling draws from successful rollouts (the paper: 1.0, so I^s holds no
     # pre-demonstrations once every rollout succeeds). Below 1 the success distribution is scaled down to it and
     # pre-demonstrations keep the rest: on SO-101 the IDM retrained on successful rollouts alone scored R² 0.85–0.92
     # on its held-out transitions in every such cycle (0.94–0.96 otherwise; benchmarks/findings.md).
     max_success_share: float = 1.0
+    # Exploration, the second: the policy learns from draws of the IDM's distribution, not its argmax.
     exploration: bool = True
+    # Self-attention, the third: in the IDM's and the policy's encoders.
     attention: bool = True
+    # Behaviour cloning on the dataset's true actions (BC), the IDM trained on them too: no env, no pre-demos.
     supervised: bool = False
     # Continuous dimensions that take only their two bounds (a gripper commanded open or shut, e.g. [3] for
     # SO-101's grasp): fitted as a Bernoulli between the bounds and played as one of them, never in between.
@@ -60,6 +64,7 @@ class IUPEConfig(ObservationPolicyConfig):
     idm_observation_keys: list[str] | None = None
     # One cycle = train IDM on I^s, then `cycle_steps` policy steps on IDM labels, then rollouts + sampling.
     cycle_steps: int = 100
+    # Episodes the policy plays at the end of every cycle (the rollouts the sampling and selection read).
     rollout_episodes: int = 20
     # The model is selected on episodes played as lerobot-eval plays them (eval_mode). N > 0: N episodes of their
     # own every cycle, from the same start seeds every cycle so that cycles are compared on one set. None: the
@@ -72,14 +77,19 @@ class IUPEConfig(ObservationPolicyConfig):
     # IDM epochs per cycle and batch size; 0 = 2 and 256 for vector states (10 epochs for continuous actions), 5
     # and 64 for images (a CNN needs more, smaller steps: on Maze 5x5, 3 epochs of batch 256 stayed at chance).
     idm_epochs: int = 0
+    # The IDM's batch size (see idm_epochs for the default).
     idm_batch_size: int = 0
+    # The IDM's Adam learning rate.
     idm_lr: float = 1e-3
     # I^s size; 0 = |I_pre|.
     sampled_set_size: int = 0
-    # Network sizes.
+    # Width of the encoders' output features (both models).
     hidden_dim: int = 64
+    # Size of each state value's token in the vector encoders (where self-attention mixes values).
     token_dim: int = 16
+    # Base channel count of the image encoder ("cnn").
     cnn_width: int = 16
+    # The policy model's Adam learning rate (LeRobot's optimizer; the IDM has idm_lr).
     optimizer_lr: float = 1e-3
     # The policy acts, is selected and is saved with an exponential moving average of its trained weights
     # (avg ← d·avg + (1−d)·w after every optimizer step; d = ema_decay), while the optimizer goes on with the raw

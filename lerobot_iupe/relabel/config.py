@@ -39,6 +39,7 @@ class RelabelConfig:
     # argmax: the IDM's most likely action (a Gaussian's mean); sample: one draw per frame (seeded by --seed and
     # the episode, so it does not depend on the number of processes).
     mode: str = "argmax"
+    # Seed of the draws of --mode=sample (unused by argmax).
     seed: int = 0
     # Frames per IDM batch; frames are read (video decoded) in spans of this size, so memory follows the batch,
     # not the dataset.
