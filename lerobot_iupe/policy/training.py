@@ -328,7 +328,7 @@ class IUPETrainer:
                 "selection_goal_rate": judged["goal"],
                 "selected": selected,
                 "best_success": state.best_success,
-                "selection_env_steps": judged["env_steps"],
+                "selection_env_steps": judged.get("env_steps", 0),
                 "selection_s": state.selection_s,
             }
         )
