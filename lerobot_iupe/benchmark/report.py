@@ -175,9 +175,8 @@ def write_report(records: list[dict], out: Path, calls: list[dict]) -> list[Path
             for (t, e, lay), (x, y) in refs.items()
         ],
     ]
-    findings = out / "findings.md"  # hand-written reading of these numbers, kept beside the report
-    if findings.exists():
-        lines += ["", findings.read_text().strip()]
+    if (out / "findings.md").exists():  # the hand-written, dated reading of these numbers, kept beside the report
+        lines += ["", "What these numbers say, dated, with what each finding decided: [findings.md](findings.md)."]
     mazes = [e for e in envs1 if e.startswith("maze")]
     demo_layouts = lambda e: "demo" if e.startswith("maze") else None  # noqa: E731
     for mode in ("argmax", "sample"):

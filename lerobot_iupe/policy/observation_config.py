@@ -176,7 +176,9 @@ class ObservationPolicyConfig(PreTrainedConfig):
         )
         if not self.observation_keys:
             if not images and not vectors:
-                raise ValueError(f"the dataset has no observation the policy can read (features: {sorted(features)})")
+                raise ValueError(
+                    f"the expert dataset has no observation {self.type.upper()} can read (features: {sorted(features)})"
+                )
             self.observation_keys = images + vectors
         unknown = [k for k in self.observation_keys if k not in features]
         if unknown:
