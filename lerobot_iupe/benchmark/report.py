@@ -27,7 +27,7 @@ METHOD_NAMES = {
     "bco": "BCO(α)",
     "iupe": "IUPE",
     "ilpo": "ILPO",
-    "ilpo_norm": "ILPO, normalised (deviation)",
+    "ilpo_norm": "ILPO + normalize",
 }
 ENV_NAMES = {"cartpole": "CartPole", "acrobot": "Acrobot", "mountaincar": "MountainCar", "maze3": "Maze 3×3",
              "maze5": "Maze 5×5", "maze10": "Maze 10×10", "lunarlander": "LunarLander",
@@ -84,6 +84,8 @@ def _table(records, table, envs, methods, layouts, mode, paper=None, cell=_cell)
         for env in envs:
             lay = layouts(env)
             cells.append(cell(_rows(records, mode, table=table, env=env, method=method, eval_layouts=lay)))
+        if all(c == "–" for c in cells) and not (paper and method in paper):
+            continue  # a method this table never ran
         lines.append(f"| {METHOD_NAMES.get(method, method)} (ours) | " + " | ".join(cells) + " |")
         if paper and method in paper:
             ref = paper[method]
