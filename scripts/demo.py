@@ -63,8 +63,8 @@ def main() -> None:
         f"expert {records[0]['R_expert']:.3f}, random {records[0]['R_random']:.3f}"
     )
     print(f"checkpoint: {out / 'runs' / 'demo' / args.env / f'{args.method}-s0' / CHECKPOINT}")
-    plots = [str(p) for p in written if p.suffix == ".png"]
-    print(f"plots: {'  '.join(plots)}   report: {out / 'results.md'}")
+    plots = [str(p) for p in written if p.suffix == ".png"]  # ILPO has no training cycles to plot
+    print(f"report: {out / 'results.md'}" + (f"   plots: {'  '.join(plots)}" if plots else ""))
     run_logs = out / "runs" / "demo" / args.env
     logs = f"{run_logs}/{args.method}-s0.log (training), {args.method}-s0.eval.log (evaluation)"
     print(f"logs: {logs}, {out / 'data' / 'logs'} (datasets)")
