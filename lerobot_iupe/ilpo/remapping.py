@@ -22,10 +22,9 @@ import torch
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from torch import Tensor, nn
 
-from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
 from lerobot_iupe.data.readers import ExpertFrames
 from lerobot_iupe.data.video import default_video_backend
-from lerobot_iupe.envs.configs import env_config_from_settings, make_envs
+from lerobot_iupe.envs.configs import make_envs
 from lerobot_iupe.ilpo.latent_model import ActionRemappingNetwork
 from lerobot_iupe.policy.algorithm import selects
 from lerobot_iupe.policy.rollouts import PolicyRollouts
@@ -102,17 +101,8 @@ class ILPOTrainer:
 
     def use_env(self):
         """The remapping env (checked against the expert data) and the maze layouts it plays."""
-        cfg, meta = self.config, self.dataset_meta
-        if cfg.env_settings is None:
-            raise ValueError(
-                f"ILPO's remapping acts in the env and the expert dataset at {meta.root} records none "
-                "(meta/iupe.json); pass --env.type=<its env> (and --env.<field>=… as for lerobot-eval)"
-            )
-        env_cfg = env_config_from_settings(cfg.env_settings)
-        for key in cfg.observation_keys:
-            check_compatible(env_spec(env_cfg, key), dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
-        self.rollouts.use_env(env_cfg)
-        self.rollouts.use_layouts(meta)
+        env_cfg = self.rollouts.use_dataset_env(self.dataset_meta)
+        self.rollouts.use_layouts(self.dataset_meta)
         return env_cfg
 
     def remap(self) -> dict:

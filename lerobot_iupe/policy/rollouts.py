@@ -7,9 +7,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lerobot_iupe.data.compat import check_compatible, dataset_spec, env_spec
 from lerobot_iupe.data.storage import read_iupe_meta
 from lerobot_iupe.data.transitions import Transitions
-from lerobot_iupe.envs.configs import env_observation, env_observation_keys, make_envs
+from lerobot_iupe.envs.configs import env_config_from_settings, env_observation, env_observation_keys, make_envs
 from lerobot_iupe.envs.rollout import run_episodes
 
 
@@ -36,6 +37,21 @@ class PolicyRollouts:
                 + ("" if layouts else ": it records none (meta/iupe.json layout_ids; maze datasets only)")
             )
         self.layouts = list(dict.fromkeys(layouts))[-cfg.rollout_layouts :] if cfg.rollout_layouts else layouts
+
+    def use_dataset_env(self, meta, what: str = "the expert dataset"):
+        """Play the env of the policy's settings (``env_settings``), checked against the observations of the dataset
+        ``meta`` (``what`` names it in errors); returns its config."""
+        cfg = self.config
+        if cfg.env_settings is None:
+            raise ValueError(
+                f"{what} at {meta.root} records no environment (meta/iupe.json); "
+                "pass --env.type=<its env> (and --env.<field>=… as for lerobot-eval)"
+            )
+        env_cfg = env_config_from_settings(cfg.env_settings)
+        for key in cfg.observation_keys:
+            check_compatible(env_spec(env_cfg, key), dataset_spec(meta, key, f"{what} at {meta.root}"))
+        self.use_env(env_cfg)
+        return env_cfg
 
     def use_env(self, env_cfg) -> None:
         """Roll out in ``env_cfg`` (any LeRobot env type whose ``features_map`` gives the policy's observations)."""

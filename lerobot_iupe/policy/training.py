@@ -32,7 +32,6 @@ from lerobot_iupe.data.readers import ExpertFrames, load_transitions
 from lerobot_iupe.data.storage import is_dataset
 from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.data.video import default_video_backend
-from lerobot_iupe.envs.configs import env_config_from_settings
 from lerobot_iupe.policy.algorithm import (
     ActionCells,
     build_sampled_set,
@@ -77,16 +76,8 @@ class IUPETrainer:
 
     def check_inputs(self) -> LeRobotDataset:
         """Every check that can fail, before any training; returns the pre-demonstrations."""
-        cfg, meta = self.config, self.dataset_meta
-        if cfg.env_settings is None:
-            raise ValueError(
-                f"the expert dataset at {meta.root} records no environment (meta/iupe.json); "
-                "pass --env.type=<its env> (and --env.<field>=… as for lerobot-eval)"
-            )
-        env_cfg = env_config_from_settings(cfg.env_settings)
-        for key in cfg.observation_keys:
-            check_compatible(env_spec(env_cfg, key), dataset_spec(meta, key, f"the expert dataset at {meta.root}"))
-        self.use_env(env_cfg)
+        cfg = self.config
+        self.rollouts.use_dataset_env(self.dataset_meta)
         if cfg.pre_demos_repo_id is None:
             raise ValueError("--policy.pre_demos_repo_id is required (random pre-demonstrations with actions)")
         root = cfg.pre_demos_root
@@ -144,11 +135,7 @@ class IUPETrainer:
     def start_selection(self) -> None:
         """A supervised run that selects (``--policy.selection_episodes=N``): its env and a state that counts the
         steps and keeps the best model; no pre-demonstrations, no IDM cycle (LeRobot's optimizer trains both)."""
-        cfg, meta = self.config, self.dataset_meta
-        env_cfg = env_config_from_settings(cfg.env_settings)
-        for key in cfg.observation_keys:
-            check_compatible(env_spec(env_cfg, key), dataset_spec(meta, key, f"the dataset at {meta.root}"))
-        self.use_env(env_cfg)
+        self.rollouts.use_dataset_env(self.dataset_meta, "the dataset")
         self.use_layouts()
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
         self.state = self.new_state(rank, None, None, 0, None)
