@@ -178,3 +178,4 @@ def test_ilpo_without_an_env_stops_before_training_naming_the_flag(cartpole_expe
     (bare / "meta" / "iupe.json").unlink()
     result = run_cli("lerobot-train", *ilpo_args(bare, tmp_path / "out", "--steps=2"), check=False)
     assert result.returncode != 0 and "--env.type" in result.stderr + result.stdout
+    assert not (tmp_path / "out" / "checkpoints").exists()  # refused before any checkpoint is written

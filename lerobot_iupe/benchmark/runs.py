@@ -114,12 +114,11 @@ def selection_rule(run: Run, checkpoint: Path, cycles: list[dict]) -> str:
     if run.method in ILPO_VARIANTS:
         if not cycles:
             return "ILPO: the final remapping network (no selection)"
-        played = (
-            "a draw" if json.loads((checkpoint / "config.json").read_text())["eval_mode"] == "sample" else "the mode"
-        )
+        config = json.loads((checkpoint / "config.json").read_text())
+        played = "a draw" if config["eval_mode"] == "sample" else "the mode"
         return (
-            f"ILPO: the remapping network of the best of {len(cycles)} points (every "
-            f"{cycles[1]['step'] - cycles[0]['step'] if len(cycles) > 1 else cycles[0]['step']} remapping steps) on "
+            f"ILPO: the remapping network of the best of {len(cycles)} points (every {config['selection_every']} "
+            "remapping steps) on "
             f"{cycles[0]['selection_episodes']} episodes of its own played by {played}, the same start seeds each "
             "time (the env's success, then the goal), latest on ties"
         )

@@ -2,7 +2,7 @@
 This module is LeRobot's API; the online remapping phase is ``remapping.py``, the networks ``latent_model.py``."""
 
 from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -18,7 +18,7 @@ from lerobot_iupe.ilpo.latent_model import (
     min_latent_loss,
 )
 from lerobot_iupe.ilpo.remapping import ILPOTrainer
-from lerobot_iupe.policy.modeling_iupe import acting_threads
+from lerobot_iupe.policy.threads import acting_threads
 
 
 class ILPOPolicy(PreTrainedPolicy):
@@ -134,8 +134,7 @@ class ILPOPolicy(PreTrainedPolicy):
     @contextmanager
     def averaged_weights(self) -> Iterator[None]:
         """ILPO keeps no weight average: the block runs on the weights as they are."""
-        with nullcontext():
-            yield
+        yield
 
     # ------------------------------------------------------------ LeRobot API
 

@@ -19,20 +19,8 @@ from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 from lerobot_iupe.policy.networks import FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
+from lerobot_iupe.policy.threads import acting_threads
 from lerobot_iupe.policy.training import IUPETrainer
-
-
-@contextmanager
-def acting_threads(threads: int) -> Iterator[None]:
-    """Run the block on ``threads`` torch threads (0: as they are) and give the caller back its own count."""
-    before = torch.get_num_threads()
-    if threads and threads != before:
-        torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        if torch.get_num_threads() != before:
-            torch.set_num_threads(before)
 
 
 class IUPEPolicy(PreTrainedPolicy):
