@@ -1,16 +1,19 @@
-"""A dataset shaped like a real SO-101 recording, written by LeRobot's own writer: two cameras (640×480 by default)
-that show a six-joint arm, ``observation.state`` as six joint positions in degrees, ``action`` as the leader arm's
-absolute joint targets, 30 fps, episodes of a few hundred frames.
+"""A dataset shaped like a real SO-101 teleoperation recording, written by LeRobot's own writer: two cameras (640×480
+by default) that show a six-joint arm, ``observation.state`` as the follower's six joint positions in degrees (the
+gripper 0 … 100), ``action`` as the leader arm's joint positions, 30 fps, episodes of a few hundred frames.
 
-The follower tracks its target with a first-order lag (q_{t+1} = q_t + LAG · (a_t − q_t)), as a position-controlled
-servo does, so a_t = q_t + (q_{t+1} − q_t) / LAG: an inverse dynamics model can recover every action from two
-frames. The targets move smoothly between random waypoints, like a teleoperator's hand. The cameras draw the arm by
-its forward kinematics from the front and from above, over a fixed textured table, so that a codec has real work.
+The follower behaves as a real one measured (``ArmDynamics``; docs/relabelling.md): the leader's position reaches
+the servos after a transport delay, each servo then closes a share of the gap per frame (a soft P controller),
+gravity holds shoulder_lift and elbow_flex below their targets by a pose-dependent offset, the jaws stop on a grasped
+object while the leader keeps closing, and readings are quantised like 12-bit encoders, with noise. The operator
+moves, holds and moves again. The cameras draw the arm by its forward kinematics from the front and from above,
+over a fixed textured table, so that a codec has real work.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +21,6 @@ from PIL import Image, ImageDraw
 
 JOINTS = ["shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper"]
 CAMERAS = ("observation.images.front", "observation.images.wrist")
-LAG = 0.5
 # Joint ranges in degrees (gripper: 0 shut … 100 open), the spread of the teleoperator's waypoints.
 LOW = np.array([-110.0, -100.0, -90.0, -95.0, -160.0, 0.0], dtype=np.float32)
 HIGH = np.array([110.0, 100.0, 90.0, 95.0, 160.0, 100.0], dtype=np.float32)
@@ -94,23 +96,95 @@ def render(q: np.ndarray, background: Image.Image, view: str, noise: np.ndarray 
     return np.clip(np.asarray(image).astype(np.int16) + noise, 0, 255).astype(np.uint8)
 
 
-def teleoperated_episode(frames: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Joint positions (frames, 6) and the leader's targets (frames, 6): targets glide between random waypoints
-    every 20–60 frames; the follower lags behind them (``LAG``)."""
-    targets = np.empty((frames, len(JOINTS)), dtype=np.float32)
-    current = rng.uniform(LOW * 0.5, HIGH * 0.5).astype(np.float32)
+@dataclass(frozen=True)
+class ArmDynamics:
+    """How the follower follows the leader. Defaults follow a real SO-101 teleoperation recording (30 fps; the mean
+    absolute error between a_t and s_{t+k} is smallest at k = 4 there, and leaves about 1.4° on shoulder_lift, 2.8°
+    on elbow_flex and 1.7 on the gripper; docs/relabelling.md)."""
+
+    # Frames between the leader's reading and the follower's servos starting to move towards it. With the default
+    # response the follower is then closest to a_t at s_{t+delay+2}: the default 2 gives the real arm's 4 frames.
+    delay: int = 2
+    # Share of the remaining gap a servo closes per frame (a first-order response; 1 = at once).
+    response: float = 0.6
+    # A servo does not move while its error is below this (degrees; stiction and the servo's dead band).
+    dead_band: float = 0.3
+    # Degrees by which gravity holds shoulder_lift and elbow_flex below their targets, at the pose of greatest load.
+    gravity: tuple[float, float] = (2.5, 4.0)
+    # Probability that a closing of the gripper grasps an object, which stops the jaws at its width.
+    grasp_probability: float = 0.5
+    # Encoder resolution: 4096 steps per turn (degrees), the gripper's 0 … 100 spanning about a third of a turn.
+    quantise: bool = True
+    # Standard deviation of a reading's noise before quantisation (degrees; gripper units).
+    reading_noise: float = 0.05
+    # The operator's hand trembles by this much (degrees per frame of a random walk, pulled back to the path).
+    tremor: float = 0.3
+
+    def __post_init__(self):
+        if self.delay < 0 or not 0.0 < self.response <= 1.0:
+            raise ValueError(f"delay must be ≥ 0 frames and response in (0, 1], got {self.delay}, {self.response}")
+
+
+ENCODER_STEP = np.array([360.0 / 4096] * 5 + [100.0 / 1365], dtype=np.float64)
+
+
+def gravity_offset(q: np.ndarray, gravity: tuple[float, float]) -> np.ndarray:
+    """How far below its command gravity holds each joint at ``q`` (degrees): the load on shoulder_lift grows with
+    how far out the upper arm and forearm reach, on elbow_flex with the forearm's reach alone."""
+    lift, elbow = np.radians(q[1]), np.radians(q[1] + q[2])
+    offset = np.zeros(len(JOINTS))
+    offset[1] = -gravity[0] * (0.6 * np.cos(lift) + 0.4 * np.cos(elbow))
+    offset[2] = -gravity[1] * np.cos(elbow)
+    return offset
+
+
+def operator_targets(
+    frames: int, rng: np.random.Generator, tremor: float, grasp_probability: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The leader's joint positions (frames, 6): glides between random waypoints over 15–50 frames, each followed by a
+    hold of 0–45 frames, all with a trembling hand; and where a grasped object stops the jaws (frames,): its width
+    while it is held, −inf elsewhere. A glide that closes the gripper grasps with ``grasp_probability``: the
+    operator then shuts the leader's jaws (0–5) on an object 10–40 wide."""
+    targets = np.empty((frames, len(JOINTS)), dtype=np.float64)
+    stops = np.full(frames, -np.inf)
+    current = rng.uniform(LOW * 0.5, HIGH * 0.5)
     t = 0
     while t < frames:
-        span = int(rng.integers(20, 61))
-        goal = rng.uniform(LOW, HIGH).astype(np.float32)
-        ease = (1 - np.cos(np.linspace(0, np.pi, span, dtype=np.float32))) / 2
+        span, hold = int(rng.integers(15, 51)), int(rng.integers(0, 46))
+        goal = rng.uniform(LOW, HIGH)
+        grasp = goal[5] < current[5] and rng.random() < grasp_probability
+        if grasp:
+            goal[5] = rng.uniform(0.0, 5.0)
+        ease = (1 - np.cos(np.linspace(0, np.pi, span))) / 2
         targets[t : t + span] = (current + ease[:, None] * (goal - current))[: frames - t]
-        current, t = goal, t + span
+        targets[t + span : t + span + hold] = goal
+        if grasp:
+            stops[t : t + span + hold] = min(rng.uniform(10.0, 40.0), current[5])
+        current, t = goal, t + span + hold
+    shake = np.zeros(len(JOINTS))
+    for t in range(frames):  # a random walk pulled back to the path: the hand never quite rests
+        shake = 0.9 * shake + rng.normal(0.0, tremor, len(JOINTS))
+        targets[t] += shake
+    return targets, stops
+
+
+def teleoperated_episode(
+    frames: int, rng: np.random.Generator, dynamics: ArmDynamics = ArmDynamics()
+) -> tuple[np.ndarray, np.ndarray]:
+    """The follower's joint readings (frames, 6) and the leader's positions (frames, 6), float32 (``ArmDynamics``)."""
+    targets, stops = operator_targets(frames, rng, dynamics.tremor, dynamics.grasp_probability)
+    q = targets[0] + rng.normal(0, 2.0, len(JOINTS))
     positions = np.empty_like(targets)
-    positions[0] = targets[0] + rng.normal(0, 2.0, len(JOINTS)).astype(np.float32)
-    for i in range(1, frames):
-        positions[i] = positions[i - 1] + LAG * (targets[i - 1] - positions[i - 1])
-    return positions, targets
+    for t in range(frames):
+        positions[t] = q
+        command = targets[max(t - dynamics.delay, 0)]
+        error = command + gravity_offset(q, dynamics.gravity) - q
+        q = q + dynamics.response * np.where(np.abs(error) > dynamics.dead_band, error, 0.0)
+        q[5] = max(q[5], stops[max(t + 1 - dynamics.delay, 0)])  # the object, as long as the delayed command holds it
+    readings = positions + rng.normal(0.0, dynamics.reading_noise, positions.shape)
+    if dynamics.quantise:
+        readings = np.round(readings / ENCODER_STEP) * ENCODER_STEP
+    return readings.astype(np.float32), targets.astype(np.float32)
 
 
 def _wait_for_encoder(dataset, poll_s: float = 0.002) -> None:
@@ -140,10 +214,12 @@ def write_arm_recording(
     vcodec: str = "libsvtav1",
     with_actions: bool = True,
     progress: bool = False,
+    dynamics: ArmDynamics = ArmDynamics(),
 ):
     """Write the recording at ``root`` with ``LeRobotDataset.create`` → ``add_frame`` → ``save_episode`` →
     ``finalize``; episode ``i`` is drawn from seed ``seed + i``. ``with_actions=false`` leaves ``action`` out
-    (a state-only recording). Returns the finalised ``LeRobotDataset``."""
+    (a state-only recording); ``dynamics`` is how the follower follows the leader. Returns the finalised
+    ``LeRobotDataset``."""
     from lerobot.configs.video import RGBEncoderConfig
     from lerobot.datasets import LeRobotDataset
     from tqdm.auto import tqdm
@@ -160,7 +236,7 @@ def write_arm_recording(
     noise_rng = np.random.default_rng(seed + 10_000)
     noise_bank = noise_rng.normal(0.0, SENSOR_NOISE, size=(16, height, width, 3)).round().astype(np.int16)
     for episode in tqdm(range(episodes), desc="arm episodes", disable=not progress):
-        positions, targets = teleoperated_episode(frames_per_episode, np.random.default_rng(seed + episode))
+        positions, targets = teleoperated_episode(frames_per_episode, np.random.default_rng(seed + episode), dynamics)
         for q, target in zip(positions, targets, strict=True):
             frame = {
                 key: render(q, backgrounds[key], view, noise_bank[noise_rng.integers(len(noise_bank))])

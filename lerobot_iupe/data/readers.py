@@ -190,6 +190,7 @@ class ExpertFrames:
         lengths = ends - starts + 1
         self.first_row, self.last_row = np.repeat(starts, lengths), np.repeat(ends, lengths)
         keys = [keys] if isinstance(keys, str) else list(keys)
+        self.keys = keys
         self.states = FrameTable(dataset, keys, layout or dataset_layout(dataset.meta, keys), video_backend, device)
         self.actions = torch.as_tensor(action_array(dataset), device=device) if with_actions else None
 
@@ -205,6 +206,13 @@ class ExpertFrames:
     def windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """Frames (B, len(offsets), …) at ``offsets`` around each row, clamped into its episode."""
         return self.states[window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])]
+
+    def vector_windows(self, key: str, rows: np.ndarray, offsets: list[int]) -> Tensor:
+        """One vector key's values (B, len(offsets), D) at ``offsets`` around each row, clamped into its episode."""
+        values = self.states.parts[self.keys.index(key)]
+        index = window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])
+        windows = torch.from_numpy(np.ascontiguousarray(values[index]))
+        return windows if self.states.device is None else windows.to(self.states.device)
 
     def pairs(self, rows: np.ndarray) -> tuple[Tensor, Tensor]:
         """(s_t, s_{t+1}) of these rows; LeRobot's sampler never draws an episode's last frame

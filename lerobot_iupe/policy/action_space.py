@@ -4,13 +4,14 @@ dimensions of a continuous action."""
 from __future__ import annotations
 
 import numpy as np
-from lerobot.utils.constants import ACTION
+from lerobot.utils.constants import ACTION, OBS_STATE
 
 
 def action_space_from_dataset(config, dataset_meta) -> None:
     """Set ``config``'s action space (an ``IUPEConfig``) from a labelled dataset without an env: integer actions
     are ids 0 … max (LeRobot's stats), float actions a box spanning the data (a constant dimension gets ±0.5 around
-    its value)."""
+    its value). For the arm model (joint positions) the box also spans the joints' states and half its width more
+    on each side: labels are clipped into it, and a few labelled episodes rarely reach every pose an arm will."""
     feature = dataset_meta.features[ACTION]
     stats = (dataset_meta.stats or {}).get(ACTION)
     if stats is None:
@@ -20,14 +21,39 @@ def action_space_from_dataset(config, dataset_meta) -> None:
     if not feature["dtype"].startswith("float"):
         config.n_actions = int(high.max()) + 1
         return
+    if getattr(config, "joint_idm", False):
+        state = dataset_meta.stats[OBS_STATE]
+        columns = config.joint_state_columns
+        low = np.minimum(low, np.asarray(state["min"], dtype=np.float64).reshape(-1)[columns])
+        high = np.maximum(high, np.asarray(state["max"], dtype=np.float64).reshape(-1)[columns])
+        low, high = low - 0.5 * (high - low), high + 0.5 * (high - low)
     flat = high - low < 1e-6
     config.action_low = [float(x) for x in np.where(flat, low - 0.5, low)]
     config.action_high = [float(x) for x in np.where(flat, high + 0.5, high)]
-    names = feature.get("names")
-    if isinstance(names, dict):  # LeRobot also writes {"motors": [...]}
-        names = next(iter(names.values()), None)
+    names = feature_names(feature)
     dim = len(config.action_low)
     config.action_names = [str(n) for n in names] if names and len(names) == dim else [f"a{i}" for i in range(dim)]
+
+
+def feature_names(feature: dict | None) -> list[str] | None:
+    """A LeRobot feature's value names (``names`` is a list, or ``{"motors": [...]}`` in older datasets)."""
+    names = (feature or {}).get("names")
+    if isinstance(names, dict):
+        names = next(iter(names.values()), None)
+    return [str(n) for n in names] if isinstance(names, list) else None
+
+
+def lag_of_dataset(dataset_meta, columns: list[int]) -> int:
+    """The lag at which a labelled dataset's actions best match its future joint states (``best_copy_lag``)."""
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_iupe.data.episodes import column_array
+    from lerobot_iupe.policy.joint_idm import best_copy_lag
+
+    hf = LeRobotDataset(dataset_meta.repo_id, root=dataset_meta.root, video_backend="pyav").hf_dataset
+    states = column_array(hf, OBS_STATE).astype(np.float64).reshape(len(hf), -1)
+    actions = column_array(hf, ACTION).astype(np.float64).reshape(len(hf), -1)
+    return best_copy_lag(states, actions, column_array(hf, "episode_index").reshape(-1), columns)
 
 
 def check_binary_action_dims(config) -> None:

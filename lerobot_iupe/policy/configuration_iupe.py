@@ -6,9 +6,15 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import PreTrainedConfig
 from lerobot.optim import AdamConfig
-from lerobot.utils.constants import ACTION
+from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims
+from lerobot_iupe.policy.action_space import (
+    action_space_from_dataset,
+    check_binary_action_dims,
+    feature_names,
+    lag_of_dataset,
+)
+from lerobot_iupe.policy.joint_idm import MAX_LAG, joint_state_columns
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
 # Measured with scripts/measure_context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
@@ -50,6 +56,15 @@ class IUPEConfig(ObservationPolicyConfig):
     # None = 1 when supervised (best overall in benchmarks/relabel.md), else 0; resolved when training starts, so
     # config.json records it (a checkpoint saved before this option existed reads as 0).
     idm_context: int | None = None
+    # Position-controlled arms, where the action and observation.state name the same joints (LeRobot's
+    # "<joint>.pos"; supervised): a_t is predicted as the state idm_lag frames later plus a ridge regression's
+    # correction and a gated network per joint (policy/joint_idm.py), from frames t-k … t+idm_lag+1+k on
+    # observation.state. None = chosen from the labelled data: the lag at which a_t best matches s_{t+lag}
+    # (0 … 10); 0 elsewhere. Resolved when training starts, so config.json records it.
+    idm_lag: int | None = None
+    # The observation.state column of each action dimension in that arm model (resolved from the names; [] = off,
+    # the IDM of the paper's envs and cameras). None = on wherever every action name is a state name.
+    joint_state_columns: list[int] | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
     n_obs_steps: int = 1
@@ -114,6 +129,8 @@ class IUPEConfig(ObservationPolicyConfig):
             raise ValueError(f"--policy.ema_decay must be in [0, 1) (0 = no weight average), got {self.ema_decay}")
         if self.idm_context is not None and self.idm_context < 0:
             raise ValueError(f"--policy.idm_context must be 0 or more frames, got {self.idm_context}")
+        if self.idm_lag is not None and not 0 <= self.idm_lag <= MAX_LAG:
+            raise ValueError(f"--policy.idm_lag must be 0 … {MAX_LAG} frames, got {self.idm_lag}")
         if self.idm_context and not self.supervised:
             raise ValueError(
                 f"--policy.idm_context={self.idm_context} needs --policy.supervised=true: the IUPE cycle's "
@@ -147,15 +164,22 @@ class IUPEConfig(ObservationPolicyConfig):
         return self.rollout_episodes if self.selection_episodes is None else self.selection_episodes
 
     @property
+    def joint_idm(self) -> bool:
+        """The IDM is the position-controlled arm's (``joint_idm.JointIDM``)."""
+        return bool(self.joint_state_columns)
+
+    @property
     def idm_keys(self) -> list[str]:
-        """The observation keys the IDM reads."""
+        """The observation keys the IDM reads (the arm model: observation.state)."""
+        if self.joint_idm:
+            return [OBS_STATE]
         return self.idm_observation_keys or self.observation_keys
 
     @property
     def idm_window(self) -> list[int]:
-        """Frame offsets the IDM reads around t: -k … k+1."""
-        k = self.idm_context or 0
-        return list(range(-k, k + 2))
+        """Frame offsets the IDM reads around t: -k … lag+1+k (lag 0 but for the arm model)."""
+        k, lag = self.idm_context or 0, self.idm_lag or 0
+        return list(range(-k, lag + k + 2))
 
     @property
     def obs_window(self) -> list[int]:
@@ -198,6 +222,7 @@ class IUPEConfig(ObservationPolicyConfig):
                     f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "
                     "(collect it with --keep_actions=true)"
                 )
+            self.resolve_joint_idm(dataset_meta)
         self.resolve_env(dataset_meta)
         if dataset_meta is not None and self.supervised and self.separate_selection_episodes and not self.env_settings:
             raise ValueError(
@@ -210,6 +235,21 @@ class IUPEConfig(ObservationPolicyConfig):
         # A Gaussian IDM needs more passes than a categorical one: with 2 epochs a cycle LunarLander's held-out R²
         # went 0.07 → 0.29 → 0.60 over three cycles, with 10 epochs 0.78 in the first (40 random episodes).
         self.idm_epochs = self.idm_epochs or (5 if self.is_image else 10 if self.is_continuous else 2)
+
+    def resolve_joint_idm(self, dataset_meta) -> None:
+        """The arm model's joint columns and lag, from the dataset's names and its labelled frames (once: a
+        checkpoint's values stay)."""
+        if self.joint_state_columns is None:
+            columns = None
+            own_keys = self.idm_observation_keys in (None, [OBS_STATE])  # an IDM of other keys was asked for
+            if self.supervised and own_keys and OBS_STATE in self.observation_keys and not self.binary_action_dims:
+                features = dataset_meta.features
+                columns = joint_state_columns(feature_names(features.get(ACTION)), feature_names(features[OBS_STATE]))
+            self.joint_state_columns = columns or []
+        if not self.joint_idm:
+            self.idm_lag = self.idm_lag or 0
+        elif self.idm_lag is None:
+            self.idm_lag = lag_of_dataset(dataset_meta, self.joint_state_columns)
 
     def check_binary_action_dims(self) -> None:
         """``binary_action_dims`` must name dimensions of a continuous action."""

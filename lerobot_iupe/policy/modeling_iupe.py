@@ -15,9 +15,11 @@ from pathlib import Path
 import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
+from lerobot_iupe.policy.joint_idm import JointIDM
 from lerobot_iupe.policy.networks import FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
 from lerobot_iupe.policy.threads import acting_threads
 from lerobot_iupe.policy.training import IUPETrainer
@@ -38,7 +40,16 @@ class IUPEPolicy(PreTrainedPolicy):
         frames, history = len(config.idm_window), config.n_obs_steps
         columns = layout.indices(i for i, key in enumerate(config.observation_keys) if key in config.idm_keys)
         self.idm_columns = None if len(columns) == layout.size else torch.as_tensor(columns)
-        if layout.fused:
+        if config.joint_idm:  # a position-controlled arm: its own model over the joint states
+            self.idm_encoder = JointIDM(
+                config.idm_window, config.idm_lag, config.joint_state_columns, len(columns), config.hidden_dim // 2
+            )
+            self.pm_encoder = (
+                FusedEncoder(layout, history, config)
+                if layout.fused
+                else VectorEncoder(history * layout.size, config.token_dim, hidden, config.attention)
+            )
+        elif layout.fused:
             self.idm_encoder = FusedEncoder(config.layout_of(config.idm_keys), frames, config)
             self.pm_encoder = FusedEncoder(layout, history, config)
         elif config.is_image:
@@ -50,7 +61,11 @@ class IUPEPolicy(PreTrainedPolicy):
         else:
             self.idm_encoder = VectorEncoder(frames * len(columns), config.token_dim, hidden, config.attention)
             self.pm_encoder = VectorEncoder(history * layout.size, config.token_dim, hidden, config.attention)
-        self.idm_head = make_action_head(hidden, config)
+        self.idm_head = make_action_head(config.action_dim if config.joint_idm else hidden, config)
+        if config.joint_idm:  # the head's mean passes each joint's correction on as it is, to start with
+            with torch.no_grad():
+                self.idm_head.weight[: config.action_dim] = torch.eye(config.action_dim)
+                self.idm_head.bias.zero_()
         self.pm_head = make_action_head(hidden, config)
         # Per-value normalisation of a joined frame: vectors by the dataset's stats, fused cameras (already in
         # [0, 1]) left as they are; a lone camera is scaled in _prepare.
@@ -105,6 +120,9 @@ class IUPEPolicy(PreTrainedPolicy):
         # steps than from separately encoded frames (0.995 vs 0.71 accuracy on expert moves in a reference
         # measurement). For k = 0 this is [s_t, s_{t+1} - s_t].
         k = self.config.idm_context or 0
+        if self.config.joint_idm:
+            columns = None if self.idm_columns is None else self.idm_columns.to(window.device)
+            return self.joint_idm_output(window if columns is None else window[:, :, columns])
         if self.layout.fused and self.idm_columns is None:
             return self.idm_head(self.idm_encoder(self._fused_differences(window, k).flatten(1, 2)))
         frames = self._prepare(window)
@@ -113,6 +131,20 @@ class IUPEPolicy(PreTrainedPolicy):
         s = frames[:, k : k + 1]
         differences = torch.cat([frames[:, :k], frames[:, k + 1 :]], dim=1) - s
         return self.idm_head(self.idm_encoder(torch.cat([s, differences], dim=1).flatten(1, 2)))
+
+    def joint_idm_output(self, window: Tensor, gated: bool | None = None) -> Tensor:
+        """The arm model's distribution parameters for a_t → joint-state windows (B, F, D), raw units: the head's
+        mean is the linear prior (copy plus ridge) plus the network's correction, times the per-joint gate when
+        ``gated`` (default: in eval mode; training fits the network ungated)."""
+        encoder, head = self.idm_encoder, self.idm_head
+        window = window.float()
+        output = head(encoder(window))
+        correction, log_std = output.split(self.config.action_dim, dim=-1)
+        if self.training if gated is None else not gated:
+            gate = 1.0
+        else:
+            gate = encoder.gate
+        return torch.cat([head._scale(encoder.prior(window)) + gate * correction, log_std], dim=-1)
 
     def _fused_differences(self, window: Tensor, k: int) -> Tensor:
         """[s_t, s_j - s_t …] (B, F, size) of fused frames, written once into one tensor: the same values as the
@@ -234,7 +266,13 @@ class IUPEPolicy(PreTrainedPolicy):
         if self.config.supervised:  # BC on the true actions, and the IDM on the same frames and actions
             labels = expert.actions[rows]
             pm_loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
-            idm_loss = self.idm_head.loss(self.idm_window_output(expert.windows(rows, self.config.idm_window)), labels)
+            if self.config.joint_idm:
+                idm_rows = self.trainer.joint_idm_rows(rows)
+                window = expert.vector_windows(OBS_STATE, idm_rows, self.config.idm_window)
+                idm_loss = self.idm_head.loss(self.joint_idm_output(window), expert.actions[idm_rows])
+            else:
+                window = expert.windows(rows, self.config.idm_window)
+                idm_loss = self.idm_head.loss(self.idm_window_output(window), labels)
             loss = pm_loss + idm_loss
             return loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
         state, next_state = expert.pairs(rows)
@@ -252,6 +290,8 @@ class IUPEPolicy(PreTrainedPolicy):
     def _save_pretrained(self, save_directory: Path, state_dict: dict[str, Tensor] | None = None) -> None:
         """Save the model selected by rollout success (the current one before any rollout), and beside it the
         algorithm's state and its cycle records."""
+        if self.trainer is not None and self.config.joint_idm:
+            self.trainer.update_joint_gate()
         if state_dict is None and self.trainer is not None and self.trainer.selected_weights is not None:
             state_dict = self.trainer.selected_weights
             if self.config.supervised:  # the policy model is selected; the IDM, learning the true actions, is kept

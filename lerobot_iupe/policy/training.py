@@ -40,6 +40,7 @@ from lerobot_iupe.policy.algorithm import (
     success_action_distribution,
 )
 from lerobot_iupe.policy.idm_fit import fit_idm
+from lerobot_iupe.policy.joint_fit import JointFit
 from lerobot_iupe.policy.rollouts import PolicyRollouts
 from lerobot_iupe.policy.train_run import resuming
 from lerobot_iupe.policy.training_state import CYCLES_FILE, TRAINING_STATE_FILE, TrainingState
@@ -63,6 +64,7 @@ class IUPETrainer:
         self.rollouts = PolicyRollouts(policy)  # the rollout env (set by check_inputs), its envs and layouts
         self.cells: ActionCells | None = None  # continuous actions: the sampling rule's action classes
         self._expert: ExpertFrames | None = None
+        self._joint_fit: JointFit | None = None  # the arm model's fit (supervised, joint actions)
 
     @property
     def cycles(self) -> list[dict]:
@@ -192,6 +194,16 @@ class IUPETrainer:
             )
             log.info(f"IUPE: expert dataset ready, {len(self._expert.episodes)} frames")
         return self._expert
+
+    def joint_idm_rows(self, rows: np.ndarray) -> np.ndarray:
+        """The arm model: fitted on the first call; the batch's rows its network trains on."""
+        if self._joint_fit is None:
+            self._joint_fit = JointFit(self.policy, self.expert_frames())
+        return self._joint_fit.training_rows(rows)
+
+    def update_joint_gate(self) -> None:
+        if self._joint_fit is not None:
+            self._joint_fit.update_gate()
 
     # ------------------------------------------------------------ 2. every step
 

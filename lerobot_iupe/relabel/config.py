@@ -89,6 +89,9 @@ class RelabelReport:
     seconds: float
     # Continuous: R² of each action dimension against the existing actions (None without them).
     agreement_per_dimension: list[float] | None = None
+    # The arm model's references on the same frames, per dimension (``relabel.references``): "ridge" (R² of the
+    # plain ridge regression on the IDM's own training data and window), "copy" and "copy_lag" (the best a_t ≈ s_{t+k}).
+    references: dict | None = None
     processes: int = 1
     written: bool = False
     # Under torchrun only process 0 gathers, writes and reports; the others return a report with this False.
@@ -119,7 +122,21 @@ class RelabelReport:
         ]
         if self.agreement_with_existing is not None:
             lines.append(f"  {agreement} the dataset's existing actions: {self.agreement_with_existing:.4f}")
-        if self.agreement_per_dimension:
+        if self.agreement_per_dimension and self.references:
+            lines += self.reference_table()
+        elif self.agreement_per_dimension:
             per = zip(self.action_names, self.agreement_per_dimension, strict=True)
             lines.append("  R² per dimension: " + ", ".join(f"{n}={v:.4f}" for n, v in per))
         return "\n".join(lines)
+
+    def reference_table(self) -> list[str]:
+        """R² per joint of the IDM beside its references; a joint where the IDM is more than 0.005 below the ridge
+        regression is marked."""
+        refs = self.references
+        width = max(len(n) for n in self.action_names)
+        lines = [f"  {'R² per joint':<{width}}  {'IDM':>7}  {'ridge':>7}  {'copy s_{t+k}':>14}"]
+        rows = zip(self.action_names, self.agreement_per_dimension, refs["ridge"], refs["copy"], refs["copy_lag"])
+        for name, idm, ridge, copy, lag in rows:
+            mark = "  ← below the ridge regression" if idm < ridge - 0.005 else ""
+            lines.append(f"  {name:<{width}}  {idm:7.4f}  {ridge:7.4f}  {copy:7.4f} (k={lag}){mark}")
+        return lines

@@ -10,8 +10,9 @@ import numpy as np
 import torch
 import torch.distributed as dist
 from lerobot.datasets import LeRobotDataset
-from lerobot.utils.constants import ACTION
+from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.readers import FrameReader, action_array, episode_bounds, label_spans
 from lerobot_iupe.data.storage import (
     dataset_lock,
@@ -39,6 +40,7 @@ from lerobot_iupe.relabel.labelling import (
     last_frame_mask,
     process_group,
 )
+from lerobot_iupe.relabel.references import joint_references, per_dimension_r2
 from lerobot_iupe.relabel.writing import action_feature, copy_dataset, pull_dataset, write_labels
 
 
@@ -92,14 +94,17 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     labels, confidence = assemble_labels(per_episode, bounds, config)
     total = len(labels)
 
-    agreement, per_dimension = None, None
+    agreement, per_dimension, references = None, None, None
     inner = ~last_frame_mask(meta, total)
     if ACTION in meta.features:
         existing = action_array(dataset)
         if config.is_continuous:
             true = existing.reshape(labels.shape)[inner]
             agreement = r_squared(labels[inner], true)
-            per_dimension = [r_squared(labels[inner][:, d], true[:, d]) for d in range(labels.shape[1])]
+            per_dimension = per_dimension_r2(labels[inner], true)
+            if config.joint_idm:
+                states = column_array(dataset.hf_dataset, OBS_STATE).astype(np.float32).reshape(total, -1)
+                references = joint_references(policy, states, existing, bounds, np.flatnonzero(inner))
         else:
             agreement = float((existing.reshape(total)[inner] == labels[inner]).mean())
     if config.is_continuous:
@@ -118,6 +123,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
         agreement_with_existing=agreement,
         seconds=seconds,
         agreement_per_dimension=per_dimension,
+        references=references,
         processes=world,
         continuous=config.is_continuous,
     )

@@ -1,0 +1,83 @@
+"""Fitting the arm model (``joint_idm.JointIDM``) inside a supervised ``lerobot-train`` run: its linear parts in
+closed form on the first step, its network on every step on all but the last ``GATE_SHARE`` of each labelled episode,
+and its per-joint gate, whenever a checkpoint is saved, on those last frames."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import torch
+from lerobot.utils.constants import OBS_STATE
+from torch import nn
+
+from lerobot_iupe.data.readers import ExpertFrames
+from lerobot_iupe.policy.joint_idm import GATE_SHARE, gate_weights
+from lerobot_iupe.policy.train_run import lerobot_train_config
+
+log = logging.getLogger("lerobot_iupe")
+
+
+def labelled_rows(expert: ExpertFrames) -> np.ndarray:
+    """The rows of the episodes this run trains on (lerobot-train's ``--dataset.episodes``; all by default)."""
+    cfg = lerobot_train_config()
+    chosen = cfg.dataset.episodes if cfg is not None else None
+    if chosen is None:
+        return np.arange(len(expert.episodes))
+    return np.flatnonzero(np.isin(expert.episodes, np.asarray(chosen)))
+
+
+def gate_rows(expert: ExpertFrames, rows: np.ndarray) -> np.ndarray:
+    """Which of ``rows`` (a boolean per row) lie in the last ``GATE_SHARE`` of their episode, on which the network
+    is judged and never trained (none in an episode of under 5 frames)."""
+    first, last = expert.first_row[rows], expert.last_row[rows]
+    length = last - first + 1
+    held = np.floor(length * GATE_SHARE).astype(np.int64)
+    return (length >= 5) & (rows > last - held)
+
+
+class JointFit:
+    """The arm model's fit on one run's expert frames."""
+
+    def __init__(self, policy: nn.Module, expert: ExpertFrames):
+        self.policy, self.expert = policy, expert
+        rows = labelled_rows(expert)
+        rows = rows[expert.first_row[rows] != expert.last_row[rows]]  # a one-frame episode has no window
+        held = gate_rows(expert, rows)
+        self.train_rows, self.gate_rows = rows[~held], rows[held]
+        self.is_gate_row = np.zeros(len(expert.episodes), dtype=bool)
+        self.is_gate_row[self.gate_rows] = True
+        encoder = policy.idm_encoder
+        if not bool(encoder.fitted):  # a checkpoint's fit (resume, --policy.path) stays
+            windows = self.windows(rows).cpu().numpy()
+            actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
+            alphas = encoder.fit(windows, actions, expert.episodes[rows])
+            log.info(
+                f"IUPE arm IDM: lag {policy.config.idm_lag} frames, window {policy.config.idm_window}, ridge alpha "
+                f"{alphas['ridge_alpha']:g} on {len(rows)} labelled frames ({len(self.gate_rows)} judge the network)"
+            )
+
+    def windows(self, rows: np.ndarray) -> torch.Tensor:
+        return self.expert.vector_windows(OBS_STATE, rows, self.policy.config.idm_window)
+
+    def training_rows(self, rows: np.ndarray) -> np.ndarray:
+        """The batch's rows the network trains on (the gate's rows left out)."""
+        return rows[~self.is_gate_row[rows]]
+
+    @torch.no_grad()
+    def update_gate(self) -> None:
+        """Each joint keeps the share of the network's correction that helps on the gate's rows (0 without them)."""
+        policy, encoder = self.policy, self.policy.idm_encoder
+        if not len(self.gate_rows):
+            encoder.gate.zero_()
+            return
+        was_training = policy.training
+        policy.eval()
+        window = self.windows(self.gate_rows)
+        output = policy.joint_idm_output(window, gated=False)[:, : policy.config.action_dim]
+        prior = policy.idm_head._scale(encoder.prior(window.float()))
+        actions = self.expert.actions[torch.as_tensor(self.gate_rows, device=self.expert.actions.device)]
+        target = policy.idm_head._scale(actions)
+        gate = gate_weights((target - prior).cpu().numpy(), (output - prior).cpu().numpy())
+        encoder.gate.copy_(torch.as_tensor(gate, dtype=torch.float32))
+        policy.train(was_training)

@@ -1,0 +1,156 @@
+"""The inverse dynamics model of a position-controlled arm: where the action and ``observation.state`` name the same
+joints (LeRobot's ``<joint>.pos``), a_t is the leader's position, which the follower reaches a few frames later.
+
+The model is a_t = s_{t+lag} + ridge(window) + gate ⊙ net(window): a copy of the state at the lag where the action
+best matches a future state (chosen from the labelled data), a ridge regression's correction over the window
+(closed form, its strength chosen by cross-validation over episodes), and a small network per joint that reads that
+joint's own window, whose correction is kept per joint only as far as it helps on labelled frames it did not train
+on (``gate``). The linear part extrapolates to poses the labelled episodes never reached, as a linear fit does; a
+network over every joint's absolute position did not (held-out R² −1.5 to 0.5 from 2 episodes, scripts/
+measure_arm_idm.py). A plain ridge regression on the same window is kept beside it as the reference that relabelling
+reports (``reference``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+# The largest lag searched (frames): 0.33 s at 30 fps, past every delay measured on SO-100/101 arms (about 0.13 s).
+MAX_LAG = 10
+RIDGE_ALPHAS = (1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0, 1000.0)
+# Share of each labelled episode, at its end, on which the network's gate is judged (it never trains on them).
+GATE_SHARE = 0.2
+
+
+def joint_state_columns(action_names: list[str] | None, state_names: list[str] | None) -> list[int] | None:
+    """For each action dimension, the ``observation.state`` column of the same name; None unless every action
+    dimension has one (an arm whose actions are joint positions)."""
+    if not action_names or not state_names:
+        return None
+    position = {name: i for i, name in enumerate(state_names)}
+    if any(name not in position for name in action_names):
+        return None
+    return [position[name] for name in action_names]
+
+
+def copy_errors(states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int]) -> np.ndarray:
+    """Mean absolute difference between a_t and s_{t+k} for k = 0 … MAX_LAG (each joint scaled by its actions'
+    spread, then averaged over joints), over the frames whose t+k lies in their episode."""
+    spread = actions.std(axis=0) + 1e-6
+    errors = []
+    for k in range(MAX_LAG + 1):
+        same = episodes[k:] == episodes[: len(episodes) - k]
+        if not same.any():
+            errors.append(np.inf)
+            continue
+        gap = np.abs(actions[: len(actions) - k][same] - states[k:][same][:, columns]) / spread
+        errors.append(float(gap.mean()))
+    return np.asarray(errors)
+
+
+def best_copy_lag(states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int]) -> int:
+    """The k at which s_{t+k} best matches a_t (``copy_errors``): how long the follower takes to reach the leader."""
+    return int(np.argmin(copy_errors(states, actions, episodes, columns)))
+
+
+def fit_ridge(features: np.ndarray, targets: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Ridge regression targets ≈ features @ W + b on standardised features, its strength chosen from
+    ``RIDGE_ALPHAS`` by the squared error of leave-one-group-out predictions (groups: episodes; fewer than two
+    episodes: five blocks of frames). Returns (W, b) in the features' own units and the alpha chosen."""
+    features, targets = np.asarray(features, np.float64), np.asarray(targets, np.float64)
+    if len(np.unique(groups)) < 2:
+        groups = np.arange(len(features)) * 5 // max(len(features), 1)
+    best, best_alpha = np.inf, RIDGE_ALPHAS[0]
+    for alpha in RIDGE_ALPHAS:
+        error = 0.0
+        for group in np.unique(groups):
+            test = groups == group
+            weight, bias = _ridge(features[~test], targets[~test], alpha)
+            error += float(((features[test] @ weight + bias - targets[test]) ** 2).sum())
+        if error < best:
+            best, best_alpha = error, alpha
+    weight, bias = _ridge(features, targets, best_alpha)
+    return weight, bias, best_alpha
+
+
+def _ridge(features: np.ndarray, targets: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    mean, std = features.mean(axis=0), features.std(axis=0) + 1e-6
+    scaled = (features - mean) / std
+    target_mean = targets.mean(axis=0)
+    gram = scaled.T @ scaled + alpha * np.eye(scaled.shape[1])
+    coef = np.linalg.solve(gram, scaled.T @ (targets - target_mean))
+    weight = coef / std[:, None]
+    return weight, target_mean - mean @ weight
+
+
+def gate_weights(residual: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    """Per joint, the share w ∈ [0, 1] of the network's ``correction`` that minimises the squared error of
+    ``residual − w · correction`` (what the linear part leaves, on frames the network did not train on)."""
+    fit = (residual * correction).sum(axis=0) / np.maximum((correction**2).sum(axis=0), 1e-12)
+    return np.clip(fit, 0.0, 1.0)
+
+
+class JointIDM(nn.Module):
+    """a_t from the window of joint states (B, F, D) at the config's offsets (raw units): copy of s_{t+lag} plus the
+    ridge's correction (buffers, fitted once by ``fit``) plus the gated per-joint network; ``forward`` returns the
+    network's per-joint correction (B, A), which the IDM head turns into the action's scaled units; ``prior`` is
+    the linear part in raw units."""
+
+    def __init__(self, offsets: list[int], lag: int, columns: list[int], state_dim: int, hidden: int):
+        super().__init__()
+        frames, joints = len(offsets), len(columns)
+        self.copy_frame = offsets.index(lag)
+        self.register_buffer("columns", torch.as_tensor(columns, dtype=torch.long), persistent=False)
+        features = frames * state_dim
+        for name, shape in (("weight", (features, joints)), ("reference_weight", (features, joints))):
+            self.register_buffer(name, torch.zeros(shape))
+        for name in ("bias", "reference_bias", "gate"):
+            self.register_buffer(name, torch.zeros(joints))
+        self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
+        self.register_buffer("scale", torch.ones(state_dim))  # the joints' spread: the network reads windows in it
+        # One small MLP per joint over that joint's own window (grouped 1×1 convolutions), its output starting at 0.
+        self.net = nn.Sequential(
+            nn.Conv1d(joints * frames, joints * hidden, 1, groups=joints),
+            nn.ReLU(),
+            nn.Conv1d(joints * hidden, joints * hidden, 1, groups=joints),
+            nn.ReLU(),
+            nn.Conv1d(joints * hidden, joints, 1, groups=joints),
+        )
+        nn.init.zeros_(self.net[-1].weight)
+        nn.init.zeros_(self.net[-1].bias)
+
+    def prior(self, window: Tensor) -> Tensor:
+        """Copy plus ridge correction (B, A), raw action units."""
+        flat = window.float().flatten(1)
+        return window[:, self.copy_frame, self.columns].float() + flat @ self.weight + self.bias
+
+    def reference(self, window: Tensor) -> Tensor:
+        """The plain ridge regression on the same window (B, A): the simplest fit, reported beside the model."""
+        return window.float().flatten(1) @ self.reference_weight + self.reference_bias
+
+    def forward(self, window: Tensor) -> Tensor:
+        """The network's per-joint correction (B, A): each joint reads its own window in units of its spread, as
+        differences from its state at the lag, and that state itself."""
+        own = window.float()[:, :, self.columns] / self.scale[self.columns]
+        own = own - own[:, self.copy_frame : self.copy_frame + 1]
+        own[:, self.copy_frame] = window.float()[:, self.copy_frame, self.columns] / self.scale[self.columns]
+        return self.net(own.transpose(1, 2).reshape(len(own), -1, 1)).squeeze(-1)
+
+    def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray) -> dict[str, float]:
+        """The linear parts in closed form from labelled windows (N, F, D) and actions (N, A): the ridge on the
+        residual a_t − s_{t+lag} (shrunk towards the copy) and the plain reference ridge on a_t."""
+        flat = windows.reshape(len(windows), -1).astype(np.float64)
+        columns = self.columns.cpu().numpy()
+        copied = windows[:, self.copy_frame][:, columns]
+        weight, bias, alpha = fit_ridge(flat, actions - copied, episodes)
+        reference_weight, reference_bias, reference_alpha = fit_ridge(flat, actions, episodes)
+        device = self.weight.device
+        as_buffer = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32, device=device)  # noqa: E731
+        self.weight.copy_(as_buffer(weight))
+        self.bias.copy_(as_buffer(bias))
+        self.reference_weight.copy_(as_buffer(reference_weight))
+        self.reference_bias.copy_(as_buffer(reference_bias))
+        self.scale.copy_(as_buffer(windows.reshape(-1, windows.shape[-1]).std(axis=0) + 1e-3))
+        self.fitted.fill_(True)
+        return {"ridge_alpha": alpha, "reference_alpha": reference_alpha}

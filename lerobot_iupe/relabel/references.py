@@ -1,0 +1,52 @@
+"""The simplest fits beside the IDM, on a dataset that already has actions (``--dry_run=true``): for the arm model
+(``policy.joint_idm``), per joint, the plain ridge regression fitted on the IDM's own labelled frames and window,
+and the best copy of a future state a_t ≈ s_{t+k}. A user sees at once whether the IDM earns its place."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lerobot_iupe.data.readers import window_indices
+from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.joint_idm import MAX_LAG
+
+
+def per_dimension_r2(predicted: np.ndarray, true: np.ndarray) -> list[float]:
+    return [r_squared(predicted[:, d], true[:, d]) for d in range(true.shape[1])]
+
+
+def episode_rows(bounds: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(first row, last row, episode) of every row of the dataset, in row order."""
+    base = bounds[0][0] if bounds else 0
+    lengths = [end - first for first, end in bounds]
+    first = np.repeat([first - base for first, _ in bounds], lengths)
+    last = np.repeat([end - 1 - base for _, end in bounds], lengths)
+    return first, last, np.repeat(np.arange(len(bounds)), lengths)
+
+
+def best_copies(states: np.ndarray, actions: np.ndarray, columns: list[int], bounds, rows: np.ndarray):
+    """Per action dimension, (R², k) of the best copy a_t ≈ s_{t+k}, k = 0 … MAX_LAG (clamped into the episode)."""
+    first, last, _ = episode_rows(bounds)
+    best = [(-np.inf, 0)] * len(columns)
+    for k in range(MAX_LAG + 1):
+        later = np.clip(rows + k, first[rows], last[rows])
+        scores = per_dimension_r2(states[later][:, columns], actions[rows])
+        best = [max(b, (s, k)) for b, s in zip(best, scores, strict=True)]
+    return best
+
+
+@torch.no_grad()
+def joint_references(policy, states: np.ndarray, actions: np.ndarray, bounds, rows: np.ndarray) -> dict:
+    """{"ridge": [R² per dimension], "copy": [R² per dimension], "copy_lag": [k per dimension]} on ``rows`` (those
+    with a successor): the references of the arm model's labels."""
+    config = policy.config
+    first, last, _ = episode_rows(bounds)
+    window = torch.as_tensor(states[window_indices(rows, config.idm_window, first[rows], last[rows])])
+    ridge = policy.idm_encoder.reference(window.to(policy.device_of_weights)).cpu().numpy()
+    copies = best_copies(states, actions, config.joint_state_columns, bounds, rows)
+    return {
+        "ridge": per_dimension_r2(ridge, actions[rows]),
+        "copy": [score for score, _ in copies],
+        "copy_lag": [lag for _, lag in copies],
+    }
