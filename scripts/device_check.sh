@@ -39,7 +39,8 @@ PY
 }
 timed "$(command -v lerobot-train)" --policy.type=iupe --policy.supervised=true --dataset.repo_id=local/arm \
   --dataset.root="$WORK/arm" --dataset.video_backend=pyav --output_dir="$WORK/idm" --steps="$STEPS" \
-  --save_freq="$STEPS" --log_freq=100 --policy.device="$DEVICE" --wandb.enable=false 2>&1 \
+  --save_freq="$STEPS" --log_freq=100 --policy.device="$DEVICE" --wandb.enable=false \
+  --policy.joint_state_columns=[] 2>&1 \
   | grep -E "step:|exit|caching|Error|error" | tail -8 | tee "$OUT/train.txt"
 CKPT=$WORK/idm/checkpoints/last/pretrained_model
 timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/held \

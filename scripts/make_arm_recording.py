@@ -1,8 +1,10 @@
 """Write an SO-101-shaped recording with LeRobot's own writer: two cameras (640×480 by default) that show a six-joint
-arm, six joint positions, the leader's absolute joint targets as actions, 30 fps (``lerobot_iupe.data.arm_recording``).
-Data to try relabelling and camera training on without a robot; the tests and ``measure_cameras.py`` use it.
+arm, six joint positions, the leader arm's joint positions as actions, 30 fps (``lerobot_iupe.data.arm_recording``).
+The follower behaves as a real SO-101 measured: a transport delay, a servo's first-order response with a dead band,
+gravity on shoulder and elbow, jaws stopped by grasped objects, 12-bit encoder readings. Data to try relabelling and
+camera training on without a robot; the tests, ``measure_cameras.py`` and ``measure_arm_idm.py`` use it.
 
-    python scripts/make_arm_recording.py --root data/arm --episodes 40 [--frames 250] [--state_only]
+    python scripts/make_arm_recording.py --root data/arm --episodes 40 [--frames 250] [--state_only] [--delay 4]
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lerobot_iupe.data.arm_recording import write_arm_recording
+from lerobot_iupe.data.arm_recording import ArmDynamics, write_arm_recording
 
 
 def main() -> None:
@@ -24,12 +26,40 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="episode i is drawn from seed + i")
     parser.add_argument("--vcodec", default="libsvtav1", help="video codec (LeRobot's default AV1, or h264)")
     parser.add_argument("--state_only", action="store_true", help="leave the actions out (a state-only recording)")
+    parser.add_argument("--no_cameras", action="store_true", help="write the joints alone, no camera")
+    default = ArmDynamics()
+    arm = parser.add_argument_group(
+        "how the follower follows the leader (defaults: a real SO-101, docs/relabelling.md)"
+    )
+    arm.add_argument("--delay", type=int, default=default.delay, help="transport delay in frames before a servo moves")
+    arm.add_argument(
+        "--response", type=float, default=default.response, help="share of its error a servo closes a frame"
+    )
+    arm.add_argument(
+        "--dead_band", type=float, default=default.dead_band, help="error (degrees) below which a servo rests"
+    )
+    arm.add_argument("--gravity", type=float, nargs=2, default=default.gravity, metavar=("LIFT", "ELBOW"),
+                     help="degrees gravity holds shoulder_lift and elbow_flex below their targets at most")  # fmt: skip
+    arm.add_argument("--grasp_probability", type=float, default=default.grasp_probability,
+                     help="probability that closing the gripper grasps an object, which stops the jaws")  # fmt: skip
+    arm.add_argument("--reading_noise", type=float, default=default.reading_noise, help="noise of a joint reading")
+    arm.add_argument("--tremor", type=float, default=default.tremor, help="the operator's hand tremor (degrees)")
+    arm.add_argument("--no_quantise", action="store_true", help="exact readings instead of 12-bit encoder steps")
     args = parser.parse_args()
+    try:
+        dynamics = ArmDynamics(
+            delay=args.delay, response=args.response, dead_band=args.dead_band, gravity=tuple(args.gravity),
+            grasp_probability=args.grasp_probability, quantise=not args.no_quantise,
+            reading_noise=args.reading_noise, tremor=args.tremor,
+        )  # fmt: skip
+    except ValueError as error:
+        parser.error(f"--delay/--response: {error}")
     if args.root.exists():
         parser.error(f"--root={args.root} already exists; choose a new folder")
     dataset = write_arm_recording(
         args.root, args.episodes, args.frames, args.height, args.width, seed=args.seed, repo_id=args.repo_id,
-        vcodec=args.vcodec, with_actions=not args.state_only, progress=True,
+        vcodec=args.vcodec, with_actions=not args.state_only, progress=True, dynamics=dynamics,
+        cameras=not args.no_cameras,
     )  # fmt: skip
     print(f"wrote {dataset.meta.total_frames} frames in {dataset.meta.total_episodes} episodes to {args.root}")
 

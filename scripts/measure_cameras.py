@@ -164,7 +164,7 @@ def main() -> None:
             str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
             f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", f"--output_dir={out}",
             f"--steps={args.steps}", f"--save_freq={args.steps}", "--log_freq=100", "--policy.device=cpu",
-            "--wandb.enable=false", env=env,
+            "--wandb.enable=false", "--policy.joint_state_columns=[]", env=env,  # the camera IDM, not the arm's
         )  # fmt: skip
         updates = [(float(u), float(d)) for u, d in re.findall(r"updt_s:([\d.]+) data_s:([\d.]+)", train["output"])]
         step_s = np.mean([u + d for u, d in updates[len(updates) // 2 :]])  # the later half: the cache is built

@@ -45,7 +45,9 @@ def main() -> None:
         h, w = (int(v) for v in shape.split("x"))
         reads = "cameras" if args.cameras_only else "cameras and state"
         out = args.work / f"arm-2000-idm-{args.steps}-{h}x{w}{'-cameras' if args.cameras_only else ''}"
+        # The camera IDM (cameras alone, or with the state), not the arm IDM of the joint states.
         only = [f"--policy.idm_observation_keys=[{','.join(CAMERAS)}]"] if args.cameras_only else []
+        only = only or ["--policy.joint_state_columns=[]"]
         train = measured(
             str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
             f"--policy.resize_shape=[{h},{w}]", f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}",

@@ -50,7 +50,8 @@ def arm_labelled(data_dir) -> Path:
 
 @pytest.fixture(scope="session")
 def arm_run(arm_labelled, shared_dir) -> Path:
-    """A supervised IDM trained on it with default flags, under the memory cap; its output directory."""
+    """A supervised camera IDM trained on it with default flags, under the memory cap; its output directory. The
+    arm IDM (joint states alone) is turned off, so that the IDM reads the cameras."""
     out = shared_dir / "runs" / "arm"
 
     def train() -> None:
@@ -58,7 +59,7 @@ def arm_run(arm_labelled, shared_dir) -> Path:
             str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
             f"--dataset.repo_id=local/{arm_labelled.name}", f"--dataset.root={arm_labelled}",
             "--dataset.video_backend=pyav", "--batch_size=8", "--steps=6", "--save_freq=6", "--num_workers=0",
-            "--policy.device=cpu", "--wandb.enable=false", f"--output_dir={out}",
+            "--policy.device=cpu", "--wandb.enable=false", f"--output_dir={out}", "--policy.joint_state_columns=[]",
         )  # fmt: skip
         assert result.returncode == 0, result.stderr[-3000:]
 

@@ -28,15 +28,16 @@ SENSOR_NOISE = 2.0  # standard deviation, in 0–255 levels
 LINKS = (0.12, 0.11, 0.10, 0.06)  # base height, upper arm, forearm, hand (metres)
 
 
-def arm_features(height: int = 480, width: int = 640, video: bool = True) -> dict:
-    """LeRobot features of the recording (as an SO-101 follower records them)."""
+def arm_features(height: int = 480, width: int = 640, video: bool = True, cameras: bool = True) -> dict:
+    """LeRobot features of the recording (as an SO-101 follower records them); ``cameras=False``: joints only."""
     camera = {
         "dtype": "video" if video else "image",
         "shape": (height, width, 3),
         "names": ["height", "width", "channels"],
     }
     joints = {"dtype": "float32", "shape": (len(JOINTS),), "names": [f"{j}.pos" for j in JOINTS]}
-    return {**{key: dict(camera) for key in CAMERAS}, "observation.state": dict(joints), "action": dict(joints)}
+    views = {key: dict(camera) for key in CAMERAS} if cameras else {}
+    return {**views, "observation.state": dict(joints), "action": dict(joints)}
 
 
 def arm_points(q: np.ndarray) -> np.ndarray:
@@ -215,16 +216,18 @@ def write_arm_recording(
     with_actions: bool = True,
     progress: bool = False,
     dynamics: ArmDynamics = ArmDynamics(),
+    cameras: bool = True,
 ):
     """Write the recording at ``root`` with ``LeRobotDataset.create`` → ``add_frame`` → ``save_episode`` →
     ``finalize``; episode ``i`` is drawn from seed ``seed + i``. ``with_actions=false`` leaves ``action`` out
-    (a state-only recording); ``dynamics`` is how the follower follows the leader. Returns the finalised
-    ``LeRobotDataset``."""
+    (a state-only recording); ``dynamics`` is how the follower follows the leader; ``cameras=False`` writes the
+    joints alone (quick data for the arm IDM, which reads only them). Returns the finalised ``LeRobotDataset``."""
     from lerobot.configs.video import RGBEncoderConfig
     from lerobot.datasets import LeRobotDataset
     from tqdm.auto import tqdm
 
-    features = arm_features(height, width, video)
+    video = video and cameras
+    features = arm_features(height, width, video, cameras)
     if not with_actions:
         features.pop("action")
     dataset = LeRobotDataset.create(
@@ -241,6 +244,7 @@ def write_arm_recording(
             frame = {
                 key: render(q, backgrounds[key], view, noise_bank[noise_rng.integers(len(noise_bank))])
                 for key, view in zip(CAMERAS, ("front", "wrist"), strict=True)
+                if cameras
             }
             frame["observation.state"] = q
             if with_actions:
