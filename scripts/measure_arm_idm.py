@@ -40,8 +40,8 @@ def train(root: Path, out: Path, steps: int, variant: str) -> Path:
         return checkpoint
     extra = ["--policy.joint_state_columns=[]"] if variant == "plain" else []
     command = [
-        str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{root.name}",
-        f"--dataset.root={root}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}", "--num_workers=0",
+        str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
+        f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}", "--num_workers=0",
         "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false", f"--output_dir={out}",
         "--log_freq=1000", *extra,
     ]  # fmt: skip
@@ -80,9 +80,8 @@ def main() -> None:
                          "idm": report.agreement_per_dimension, **refs})  # fmt: skip
             print(report.summary(), flush=True)
     (args.work / f"results-{args.variant}.json").write_text(json.dumps(rows, indent=1))
-    print(
-        f"\n| delay | labelled | lag | joint | IDM | ridge | best copy (k) | IDM − ridge |\n|---|---|---|---|---|---|---|---|"
-    )
+    print("\n| delay | labelled | lag | joint | IDM | ridge | best copy (k) | IDM − ridge |")
+    print("|---|---|---|---|---|---|---|---|")
     for row in rows:
         for n, name in enumerate(row["joints"]):
             ridge = row.get("ridge", [float("nan")] * 6)[n]

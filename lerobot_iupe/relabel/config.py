@@ -135,7 +135,9 @@ class RelabelReport:
         refs = self.references
         width = max(len(n) for n in self.action_names)
         lines = [f"  {'R² per joint':<{width}}  {'IDM':>7}  {'ridge':>7}  {'copy s_{t+k}':>14}"]
-        rows = zip(self.action_names, self.agreement_per_dimension, refs["ridge"], refs["copy"], refs["copy_lag"])
+        rows = zip(
+            self.action_names, self.agreement_per_dimension, refs["ridge"], refs["copy"], refs["copy_lag"], strict=True
+        )
         for name, idm, ridge, copy, lag in rows:
             mark = "  ← below the ridge regression" if idm < ridge - 0.005 else ""
             lines.append(f"  {name:<{width}}  {idm:7.4f}  {ridge:7.4f}  {copy:7.4f} (k={lag}){mark}")
