@@ -41,7 +41,8 @@ def train(root: Path, out: Path, steps: int, variant: str) -> Path:
     extra = ["--policy.joint_state_columns=[]"] if variant == "plain" else []
     command = [
         str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
-        f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", f"--steps={steps}", "--batch_size=64", f"--save_freq={steps}", "--num_workers=0",
+        f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", f"--steps={steps}", "--batch_size=64",
+        f"--save_freq={steps}", "--num_workers=0",
         "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false", f"--output_dir={out}",
         "--log_freq=1000", *extra,
     ]  # fmt: skip
