@@ -6,13 +6,14 @@ from __future__ import annotations
 import json
 import os
 import resource
+import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import BIN, CHECKPOINT, once, run_cli
+from conftest import BIN, CHECKPOINT, once, run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.data.arm_recording import CAMERAS, write_arm_recording
@@ -248,3 +249,39 @@ def test_a_camera_with_other_channels_is_refused_naming_both_sides():
     check_compatible(checkpoint, DataSpec("a smaller dataset", CAMERAS[0], (240, 320, 3)))  # any size is resized
     with pytest.raises(ValueError, match="has 1 channels in the depth dataset but 3 in the checkpoint"):
         check_compatible(checkpoint, DataSpec("the depth dataset", CAMERAS[0], (480, 640, 1)))
+
+
+@pytest.fixture(scope="session")
+def arm_joint_run(arm_labelled, shared_dir) -> Path:
+    """lerobot-train with default flags on the camera recording: the policy reads the cameras, the IDM is the
+    arm's (joint states alone)."""
+    out = shared_dir / "runs" / "arm-joint"
+
+    def train() -> None:
+        run_cli(
+            "lerobot-train", "--policy.type=iupe", "--policy.supervised=true",
+            f"--dataset.repo_id=local/{arm_labelled.name}", f"--dataset.root={arm_labelled}",
+            "--dataset.video_backend=pyav", "--batch_size=8", "--steps=4", "--save_freq=4", "--num_workers=0",
+            "--policy.device=cpu", "--wandb.enable=false", f"--output_dir={out}",
+        )  # fmt: skip
+
+    return once(out, train, CHECKPOINT)
+
+
+def test_the_arm_idm_relabels_without_decoding_a_camera(arm_joint_run, data_dir, tmp_path):
+    """The policy reads the cameras, but its IDM reads the joint states: relabelling a recording whose videos
+    cannot be decoded labels every frame all the same."""
+    config = json.loads((arm_joint_run / CHECKPOINT / "config.json").read_text())
+    assert config["joint_state_columns"] == list(range(6)) and CAMERAS[0] in config["observation_keys"]
+    source = arm(data_dir, "arm-480-state-only", episodes=3, frames_per_episode=24, with_actions=False)
+    root = tmp_path / "broken-videos"
+    shutil.copytree(source, root)
+    videos = sorted((root / "videos").rglob("*.mp4"))
+    assert videos
+    for video in videos:
+        video.write_bytes(b"not a video")
+    result = run_in_process(
+        "lerobot-iupe-relabel", f"--policy.path={arm_joint_run / CHECKPOINT}", "--dataset.repo_id=local/x",
+        f"--dataset.root={root}", "--dataset.video_backend=pyav", "--dry_run=true", check=True,
+    )  # fmt: skip
+    assert "72 frames of 3 episodes labelled" in result.stdout

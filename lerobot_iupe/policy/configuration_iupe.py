@@ -14,7 +14,7 @@ from lerobot_iupe.policy.action_space import (
     feature_names,
     lag_of_dataset,
 )
-from lerobot_iupe.policy.joint_idm import MAX_LAG, joint_state_columns
+from lerobot_iupe.policy.joint_idm import joint_state_columns
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
 # Measured with scripts/measure_context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
@@ -60,7 +60,7 @@ class IUPEConfig(ObservationPolicyConfig):
     # "<joint>.pos"; supervised): a_t is predicted as the state idm_lag frames later plus a ridge regression's
     # correction and a gated network per joint (policy/joint_idm.py), from frames t-k … t+idm_lag+1+k on
     # observation.state. None = chosen from the labelled data: the lag at which a_t best matches s_{t+lag}
-    # (0 … 10); 0 elsewhere. Resolved when training starts, so config.json records it.
+    # (0 … 0.35 s); 0 elsewhere. Resolved when training starts, so config.json records it.
     idm_lag: int | None = None
     # The observation.state column of each action dimension in that arm model (resolved from the names; [] = off,
     # the IDM of the paper's envs and cameras). None = on wherever every action name is a state name.
@@ -129,8 +129,8 @@ class IUPEConfig(ObservationPolicyConfig):
             raise ValueError(f"--policy.ema_decay must be in [0, 1) (0 = no weight average), got {self.ema_decay}")
         if self.idm_context is not None and self.idm_context < 0:
             raise ValueError(f"--policy.idm_context must be 0 or more frames, got {self.idm_context}")
-        if self.idm_lag is not None and not 0 <= self.idm_lag <= MAX_LAG:
-            raise ValueError(f"--policy.idm_lag must be 0 … {MAX_LAG} frames, got {self.idm_lag}")
+        if self.idm_lag is not None and self.idm_lag < 0:
+            raise ValueError(f"--policy.idm_lag must be 0 or more frames, got {self.idm_lag}")
         if self.idm_context and not self.supervised:
             raise ValueError(
                 f"--policy.idm_context={self.idm_context} needs --policy.supervised=true: the IUPE cycle's "

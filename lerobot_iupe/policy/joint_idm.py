@@ -12,13 +12,15 @@ reports (``reference``)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-# The largest lag searched (frames): 0.33 s at 30 fps, past every delay measured on SO-100/101 arms (about 0.13 s).
-MAX_LAG = 10
-RIDGE_ALPHAS = (1e-3, 1e-2, 0.1, 1.0, 10.0, 100.0, 1000.0)
+# The longest lag searched: 0.35 s, well past the delays measured on SO-100/101 arms (about 0.13 s); 10 frames at least.
+MAX_LAG_SECONDS = 0.35
+RIDGE_ALPHAS = tuple(10.0**p for p in range(-3, 6))
 # Share of each labelled episode, at its end, on which the network's gate is judged (it never trains on them).
 GATE_SHARE = 0.2
 
@@ -34,12 +36,19 @@ def joint_state_columns(action_names: list[str] | None, state_names: list[str] |
     return [position[name] for name in action_names]
 
 
-def copy_errors(states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int]) -> np.ndarray:
-    """Mean absolute difference between a_t and s_{t+k} for k = 0 … MAX_LAG (each joint scaled by its actions'
+def max_lag(fps: float | None) -> int:
+    """The longest lag searched at ``fps`` frames per second (``MAX_LAG_SECONDS``; 10 frames at least)."""
+    return max(10, math.ceil(MAX_LAG_SECONDS * (fps or 30)))
+
+
+def copy_errors(
+    states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int], longest: int = 10
+) -> np.ndarray:
+    """Mean absolute difference between a_t and s_{t+k} for k = 0 … ``longest`` (each joint scaled by its actions'
     spread, then averaged over joints), over the frames whose t+k lies in their episode."""
     spread = actions.std(axis=0) + 1e-6
     errors = []
-    for k in range(MAX_LAG + 1):
+    for k in range(longest + 1):
         same = episodes[k:] == episodes[: len(episodes) - k]
         if not same.any():
             errors.append(np.inf)
@@ -49,9 +58,11 @@ def copy_errors(states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, c
     return np.asarray(errors)
 
 
-def best_copy_lag(states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int]) -> int:
+def best_copy_lag(
+    states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int], longest: int = 10
+) -> int:
     """The k at which s_{t+k} best matches a_t (``copy_errors``): how long the follower takes to reach the leader."""
-    return int(np.argmin(copy_errors(states, actions, episodes, columns)))
+    return int(np.argmin(copy_errors(states, actions, episodes, columns, longest)))
 
 
 def fit_ridge(features: np.ndarray, targets: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -132,6 +132,16 @@ class IUPEPolicy(PreTrainedPolicy):
         differences = torch.cat([frames[:, :k], frames[:, k + 1 :]], dim=1) - s
         return self.idm_head(self.idm_encoder(torch.cat([s, differences], dim=1).flatten(1, 2)))
 
+    @property
+    def labelling_keys(self) -> list[str]:
+        """The observation keys relabelling reads: the arm model's joint states alone (its cameras are never
+        decoded), else every key of the policy (``idm_window_output`` takes them joined)."""
+        return self.config.idm_keys if self.config.joint_idm else self.config.observation_keys
+
+    def labelling_output(self, window: Tensor) -> Tensor:
+        """The IDM's distribution parameters for windows (B, F, …) of ``labelling_keys``, joined."""
+        return self.joint_idm_output(window) if self.config.joint_idm else self.idm_window_output(window)
+
     def joint_idm_output(self, window: Tensor, gated: bool | None = None) -> Tensor:
         """The arm model's distribution parameters for a_t → joint-state windows (B, F, D), raw units: the head's
         mean is the linear prior (copy plus ridge) plus the network's correction, times the per-joint gate when

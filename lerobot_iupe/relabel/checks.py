@@ -72,9 +72,9 @@ def label_names(config) -> list[str]:
 def check_labelable(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite: bool, dry_run: bool) -> list[str]:
     """Raise an error naming both sides when this checkpoint cannot label the dataset (``data.compat``: every
     observation key the IDM reads, its shape, fps, and the action space of an ``action`` the dataset already has),
-    or when the dataset has actions and replacing them was not asked for. Returns the observation keys."""
+    or when the dataset has actions and replacing them was not asked for. Returns the observation keys to read."""
     config = policy.config
-    for key in config.observation_keys:
+    for key in policy.labelling_keys:
         check_compatible(checkpoint_spec(config, key), dataset_spec(meta, key, f"the dataset {meta.root}"))
     if ACTION in meta.features:
         if not (overwrite or dry_run):
@@ -96,4 +96,4 @@ def check_labelable(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite:
                 f"the dataset {meta.root} names its actions {names} but the checkpoint --policy.path was trained "
                 f"on {list(config.action_names)}; they must be the same actions"
             )
-    return list(config.observation_keys)
+    return list(policy.labelling_keys)

@@ -100,7 +100,7 @@ def label_spans_with_idm(
             index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
             frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
             passes = torch.as_tensor(index, device=device).split(IDM_BATCH)
-            output = torch.cat([policy.idm_window_output(frames[part]).float().cpu() for part in passes])
+            output = torch.cat([policy.labelling_output(frames[part]).float().cpu() for part in passes])
             generator = generators.setdefault(span.episode, episode_generator(seed, span.episode))
             chosen = head.choose(output, mode == "sample", generator)
             if config.is_continuous:

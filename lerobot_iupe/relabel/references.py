@@ -9,7 +9,7 @@ import torch
 
 from lerobot_iupe.data.readers import window_indices
 from lerobot_iupe.policy.algorithm import r_squared
-from lerobot_iupe.policy.joint_idm import MAX_LAG
+from lerobot_iupe.policy.joint_idm import max_lag
 
 
 def per_dimension_r2(predicted: np.ndarray, true: np.ndarray) -> list[float]:
@@ -25,11 +25,12 @@ def episode_rows(bounds: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray,
     return first, last, np.repeat(np.arange(len(bounds)), lengths)
 
 
-def best_copies(states: np.ndarray, actions: np.ndarray, columns: list[int], bounds, rows: np.ndarray):
-    """Per action dimension, (R², k) of the best copy a_t ≈ s_{t+k}, k = 0 … MAX_LAG (clamped into the episode)."""
+def best_copies(states: np.ndarray, actions: np.ndarray, columns: list[int], bounds, rows: np.ndarray, longest: int):
+    """Per action dimension, (R², k) of the best copy a_t ≈ s_{t+k}, k = 0 … ``longest`` (clamped into the
+    episode)."""
     first, last, _ = episode_rows(bounds)
     best = [(-np.inf, 0)] * len(columns)
-    for k in range(MAX_LAG + 1):
+    for k in range(longest + 1):
         later = np.clip(rows + k, first[rows], last[rows])
         scores = per_dimension_r2(states[later][:, columns], actions[rows])
         best = [max(b, (s, k)) for b, s in zip(best, scores, strict=True)]
@@ -44,7 +45,7 @@ def joint_references(policy, states: np.ndarray, actions: np.ndarray, bounds, ro
     first, last, _ = episode_rows(bounds)
     window = torch.as_tensor(states[window_indices(rows, config.idm_window, first[rows], last[rows])])
     ridge = policy.idm_encoder.reference(window.to(policy.device_of_weights)).cpu().numpy()
-    copies = best_copies(states, actions, config.joint_state_columns, bounds, rows)
+    copies = best_copies(states, actions, config.joint_state_columns, bounds, rows, max_lag(config.fps))
     return {
         "ridge": per_dimension_r2(ridge, actions[rows]),
         "copy": [score for score, _ in copies],
