@@ -37,9 +37,10 @@ def gate_rows(expert: ExpertFrames, rows: np.ndarray) -> np.ndarray:
 
 
 class JointFit:
-    """The arm model's fit on one run's expert frames."""
+    """The arm model's fit on one run's expert frames (``resume``: lerobot-train --resume=true, which keeps the
+    saved linear parts)."""
 
-    def __init__(self, policy: nn.Module, expert: ExpertFrames):
+    def __init__(self, policy: nn.Module, expert: ExpertFrames, resume: bool):
         self.policy, self.expert = policy, expert
         rows = labelled_rows(expert)
         rows = rows[expert.first_row[rows] != expert.last_row[rows]]  # a one-frame episode has no window
@@ -48,7 +49,7 @@ class JointFit:
         self.is_gate_row = np.zeros(len(expert.episodes), dtype=bool)
         self.is_gate_row[self.gate_rows] = True
         encoder = policy.idm_encoder
-        if not bool(encoder.fitted):  # a checkpoint's fit (resume, --policy.path) stays
+        if not (resume and bool(encoder.fitted)):  # --resume=true goes on with its fit; a new run fits its own data
             windows = self.windows(rows).cpu().numpy()
             actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
             alphas = encoder.fit(windows, actions, expert.episodes[rows])

@@ -198,7 +198,7 @@ class IUPETrainer:
     def joint_idm_rows(self, rows: np.ndarray) -> np.ndarray:
         """The arm model: fitted on the first call; the batch's rows its network trains on."""
         if self._joint_fit is None:
-            self._joint_fit = JointFit(self.policy, self.expert_frames())
+            self._joint_fit = JointFit(self.policy, self.expert_frames(), self.resume)
         return self._joint_fit.training_rows(rows)
 
     def update_joint_gate(self) -> None:
