@@ -36,17 +36,15 @@ def test_the_lag_is_where_the_action_best_matches_a_later_state_within_its_episo
     assert best_copy_lag(walk, walk, episodes, [0, 1]) == 0
 
 
-def test_ridge_recovers_a_linear_map_and_chooses_its_strength_by_held_out_episodes():
+def test_ridge_recovers_a_linear_map_and_chooses_each_targets_strength_by_held_out_episodes():
     rng = np.random.default_rng(1)
     x = rng.normal(size=(300, 5))
-    true_w = rng.normal(size=(5, 2))
-    y = x @ true_w + 3.0
-    weight, bias, alpha = fit_ridge(x, y, np.repeat([0, 1, 2], 100))
-    assert np.abs(x @ weight + bias - y).max() < 0.05
-    assert alpha <= 0.1  # exact data: the weakest penalty wins
-    noisy = rng.normal(size=(300, 2))  # targets no feature explains: the strongest penalty wins
-    _, _, alpha = fit_ridge(x, noisy, np.repeat([0, 1, 2], 100))
-    assert alpha >= 100.0
+    exact = x @ rng.normal(size=(5, 2)) + 3.0
+    noise = rng.normal(size=(300, 1))  # a target no feature explains
+    weight, bias, alphas = fit_ridge(x, np.concatenate([exact, noise], axis=1), np.repeat([0, 1, 2], 100))
+    assert np.abs(x @ weight[:, :2] + bias[:2] - exact).max() < 0.05
+    assert alphas[0] <= 0.1 and alphas[1] <= 0.1  # exact data: the weakest penalty wins
+    assert alphas[2] >= 100.0  # noise: the strongest, whatever the other targets chose
 
 
 def test_the_gate_keeps_what_the_network_gets_right_and_drops_what_it_gets_wrong():

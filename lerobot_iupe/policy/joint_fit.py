@@ -54,8 +54,8 @@ class JointFit:
             actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
             alphas = encoder.fit(windows, actions, expert.episodes[rows])
             log.info(
-                f"IUPE arm IDM: lag {policy.config.idm_lag} frames, window {policy.config.idm_window}, ridge alpha "
-                f"{alphas['ridge_alpha']:g} on {len(rows)} labelled frames ({len(self.gate_rows)} judge the network)"
+                f"IUPE arm IDM: lag {policy.config.idm_lag} frames, window {policy.config.idm_window}, ridge alphas "
+                f"{alphas['ridge_alpha']} on {len(rows)} labelled frames ({len(self.gate_rows)} judge the network)"
             )
 
     def windows(self, rows: np.ndarray) -> torch.Tensor:

@@ -21,6 +21,7 @@ from torch import Tensor, nn
 # The longest lag searched: 0.35 s, well past the delays measured on SO-100/101 arms (about 0.13 s); 10 frames at least.
 MAX_LAG_SECONDS = 0.35
 RIDGE_ALPHAS = tuple(10.0**p for p in range(-3, 6))
+MAX_FOLDS = 10
 # Share of each labelled episode, at its end, on which the network's gate is judged (it never trains on them).
 GATE_SHARE = 0.2
 
@@ -65,34 +66,39 @@ def best_copy_lag(
     return int(np.argmin(copy_errors(states, actions, episodes, columns, longest)))
 
 
-def fit_ridge(features: np.ndarray, targets: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Ridge regression targets ≈ features @ W + b on standardised features, its strength chosen from
-    ``RIDGE_ALPHAS`` by the squared error of leave-one-group-out predictions (groups: episodes; fewer than two
-    episodes: five blocks of frames). Returns (W, b) in the features' own units and the alpha chosen."""
+def fit_ridge(
+    features: np.ndarray, targets: np.ndarray, groups: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ridge regression targets ≈ features @ W + b on standardised features (the intercept not penalised), the
+    strength of each target column chosen from ``RIDGE_ALPHAS`` by the squared error of its held-out predictions:
+    leave one episode out (``groups``; over ``MAX_FOLDS`` episodes, that many folds of them; a single episode, five
+    blocks of frames). Each fold is solved from per-fold sums (ZᵀZ, Zᵀy), so the cost does not grow with folds ×
+    frames. Returns W and b in the features' own units, and the alphas."""
     features, targets = np.asarray(features, np.float64), np.asarray(targets, np.float64)
-    if len(np.unique(groups)) < 2:
-        groups = np.arange(len(features)) * 5 // max(len(features), 1)
-    best, best_alpha = np.inf, RIDGE_ALPHAS[0]
-    for alpha in RIDGE_ALPHAS:
-        error = 0.0
-        for group in np.unique(groups):
-            test = groups == group
-            weight, bias = _ridge(features[~test], targets[~test], alpha)
-            error += float(((features[test] @ weight + bias - targets[test]) ** 2).sum())
-        if error < best:
-            best, best_alpha = error, alpha
-    weight, bias = _ridge(features, targets, best_alpha)
-    return weight, bias, best_alpha
-
-
-def _ridge(features: np.ndarray, targets: np.ndarray, alpha: float) -> tuple[np.ndarray, np.ndarray]:
     mean, std = features.mean(axis=0), features.std(axis=0) + 1e-6
-    scaled = (features - mean) / std
-    target_mean = targets.mean(axis=0)
-    gram = scaled.T @ scaled + alpha * np.eye(scaled.shape[1])
-    coef = np.linalg.solve(gram, scaled.T @ (targets - target_mean))
-    weight = coef / std[:, None]
-    return weight, target_mean - mean @ weight
+    scaled = np.concatenate([(features - mean) / std, np.ones((len(features), 1))], axis=1)
+    labels = np.unique(groups, return_inverse=True)[1].reshape(-1)
+    if labels.max(initial=0) == 0:
+        labels = np.arange(len(features)) * 5 // max(len(features), 1)
+    folds = labels % MAX_FOLDS
+    stats = [
+        (scaled[fold].T @ scaled[fold], scaled[fold].T @ targets[fold], (targets[fold] ** 2).sum(axis=0))
+        for fold in (folds == f for f in np.unique(folds))
+    ]
+    gram, moment = sum(g for g, _, _ in stats), sum(m for _, m, _ in stats)
+    penalty = np.diag(np.r_[np.ones(features.shape[1]), 0.0])
+    errors = np.zeros((len(RIDGE_ALPHAS), targets.shape[1]))
+    for n, alpha in enumerate(RIDGE_ALPHAS):
+        for fold_gram, fold_moment, fold_square in stats:
+            coef = np.linalg.solve(gram - fold_gram + alpha * penalty, moment - fold_moment)
+            predicted_square = (coef * (fold_gram @ coef)).sum(axis=0)
+            errors[n] += fold_square - 2.0 * (coef * fold_moment).sum(axis=0) + predicted_square
+    chosen = errors.argmin(axis=0)
+    coef = np.zeros((scaled.shape[1], targets.shape[1]))
+    for n in np.unique(chosen):
+        coef[:, chosen == n] = np.linalg.solve(gram + RIDGE_ALPHAS[n] * penalty, moment[:, chosen == n])
+    weight = coef[:-1] / std[:, None]
+    return weight, coef[-1] - mean @ weight, np.asarray(RIDGE_ALPHAS)[chosen]
 
 
 def gate_weights(residual: np.ndarray, correction: np.ndarray) -> np.ndarray:
@@ -148,7 +154,7 @@ class JointIDM(nn.Module):
         own[:, self.copy_frame] = window.float()[:, self.copy_frame, self.columns] / self.scale[self.columns]
         return self.net(own.transpose(1, 2).reshape(len(own), -1, 1)).squeeze(-1)
 
-    def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray) -> dict[str, float]:
+    def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray) -> dict[str, list[float]]:
         """The linear parts in closed form from labelled windows (N, F, D) and actions (N, A): the ridge on the
         residual a_t − s_{t+lag} (shrunk towards the copy) and the plain reference ridge on a_t."""
         flat = windows.reshape(len(windows), -1).astype(np.float64)
@@ -164,4 +170,4 @@ class JointIDM(nn.Module):
         self.reference_bias.copy_(as_buffer(reference_bias))
         self.scale.copy_(as_buffer(windows.reshape(-1, windows.shape[-1]).std(axis=0) + 1e-3))
         self.fitted.fill_(True)
-        return {"ridge_alpha": alpha, "reference_alpha": reference_alpha}
+        return {"ridge_alpha": alpha.tolist(), "reference_alpha": reference_alpha.tolist()}
