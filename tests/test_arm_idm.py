@@ -127,3 +127,13 @@ def test_the_window_reaches_past_the_delay_and_is_recorded_and_reloaded(delayed_
         mean = policy.idm_head.mode(policy.eval().idm_window_output(window))
     copied = window[:, policy.config.idm_window.index(policy.config.idm_lag)]
     assert (mean - copied).abs().mean() < (mean - window[:, 0]).abs().mean()
+
+
+def test_an_arm_idm_asked_of_an_unsupervised_run_or_of_cameras_is_refused_naming_the_flags():
+    from lerobot_iupe.policy.configuration_iupe import IUPEConfig
+
+    with pytest.raises(ValueError, match="joint_state_columns.*needs --policy.supervised=true"):
+        IUPEConfig(joint_state_columns=[0, 1])
+    with pytest.raises(ValueError, match="idm_observation_keys.*joint_state_columns=\\[\\]"):
+        IUPEConfig(supervised=True, joint_state_columns=[0], idm_observation_keys=["observation.images.front"])
+    assert IUPEConfig(supervised=True, joint_state_columns=[]).idm_window == [0, 1]

@@ -131,6 +131,17 @@ class IUPEConfig(ObservationPolicyConfig):
             raise ValueError(f"--policy.idm_context must be 0 or more frames, got {self.idm_context}")
         if self.idm_lag is not None and self.idm_lag < 0:
             raise ValueError(f"--policy.idm_lag must be 0 or more frames, got {self.idm_lag}")
+        if self.joint_state_columns and not self.supervised:
+            raise ValueError(
+                f"--policy.joint_state_columns={self.joint_state_columns} (the arm IDM) needs --policy.supervised=true: "
+                "it learns from labelled windows"
+            )
+        if self.joint_state_columns and self.idm_observation_keys not in (None, [OBS_STATE]):
+            raise ValueError(
+                f"--policy.joint_state_columns={self.joint_state_columns} makes the IDM read {OBS_STATE} alone, but "
+                f"--policy.idm_observation_keys={self.idm_observation_keys}: pass --policy.joint_state_columns=[] for "
+                "an IDM of those keys"
+            )
         if self.idm_context and not self.supervised:
             raise ValueError(
                 f"--policy.idm_context={self.idm_context} needs --policy.supervised=true: the IUPE cycle's "
@@ -242,9 +253,11 @@ class IUPEConfig(ObservationPolicyConfig):
         if self.joint_state_columns is None:
             columns = None
             own_keys = self.idm_observation_keys in (None, [OBS_STATE])  # an IDM of other keys was asked for
-            if self.supervised and own_keys and OBS_STATE in self.observation_keys and not self.binary_action_dims:
-                features = dataset_meta.features
+            features = dataset_meta.features
+            float_actions = features.get(ACTION, {}).get("dtype", "").startswith("float")
+            if self.supervised and own_keys and float_actions and OBS_STATE in self.observation_keys:
                 columns = joint_state_columns(feature_names(features.get(ACTION)), feature_names(features[OBS_STATE]))
+            columns = None if self.binary_action_dims else columns
             self.joint_state_columns = columns or []
         if not self.joint_idm:
             self.idm_lag = self.idm_lag or 0
