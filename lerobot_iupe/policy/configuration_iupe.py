@@ -133,8 +133,8 @@ class IUPEConfig(ObservationPolicyConfig):
             raise ValueError(f"--policy.idm_lag must be 0 or more frames, got {self.idm_lag}")
         if self.joint_state_columns and not self.supervised:
             raise ValueError(
-                f"--policy.joint_state_columns={self.joint_state_columns} (the arm IDM) needs --policy.supervised=true: "
-                "it learns from labelled windows"
+                f"--policy.joint_state_columns={self.joint_state_columns} (the arm IDM) needs "
+                "--policy.supervised=true: it learns from labelled windows"
             )
         if self.joint_state_columns and self.idm_observation_keys not in (None, [OBS_STATE]):
             raise ValueError(
