@@ -14,7 +14,14 @@ from conftest import CHECKPOINT, once, run_in_process, train_once
 
 from lerobot_iupe.data.arm_recording import ENCODER_STEP, ArmDynamics, teleoperated_episode, write_arm_recording
 from lerobot_iupe.policy import IUPEPolicy
-from lerobot_iupe.policy.joint_idm import best_copy_lag, fit_ridge, gate_weights, joint_state_columns
+from lerobot_iupe.policy.joint_idm import (
+    BLOCKS,
+    best_copy_lag,
+    episode_blocks,
+    fit_ridge,
+    gate_weights,
+    joint_state_columns,
+)
 
 DELAY = 4
 
@@ -41,10 +48,13 @@ def test_ridge_recovers_a_linear_map_and_chooses_each_targets_strength_by_held_o
     x = rng.normal(size=(300, 5))
     exact = x @ rng.normal(size=(5, 2)) + 3.0
     noise = rng.normal(size=(300, 1))  # a target no feature explains
-    weight, bias, alphas = fit_ridge(x, np.concatenate([exact, noise], axis=1), np.repeat([0, 1, 2], 100))
+    weight, bias, alphas, _ = fit_ridge(x, np.concatenate([exact, noise], axis=1), np.repeat([0, 1, 2], 100))
     assert np.abs(x @ weight[:, :2] + bias[:2] - exact).max() < 0.05
     assert alphas[0] <= 0.1 and alphas[1] <= 0.1  # exact data: the weakest penalty wins
     assert alphas[2] >= 100.0  # noise: the strongest, whatever the other targets chose
+    # Folds are contiguous blocks of each episode, BLOCKS to an episode.
+    blocks = episode_blocks(np.array([7] * 2 * BLOCKS + [3] * BLOCKS))
+    assert blocks.tolist() == [BLOCKS + n // 2 for n in range(2 * BLOCKS)] + list(range(BLOCKS))
 
 
 def test_the_gate_keeps_what_the_network_gets_right_and_drops_what_it_gets_wrong():

@@ -21,7 +21,10 @@ from torch import Tensor, nn
 # The longest lag searched: 0.35 s, well past the delays measured on SO-100/101 arms (about 0.13 s); 10 frames at least.
 MAX_LAG_SECONDS = 0.35
 RIDGE_ALPHAS = tuple(10.0**p for p in range(-3, 6))
-MAX_FOLDS = 10
+MAX_FOLDS = 20
+BLOCKS = 10
+# The reference a user would fit first: a ridge regression with scikit-learn's default strength, standardised inputs.
+REFERENCE_ALPHA = 1.0
 # Share of each labelled episode, at its end, on which the network's gate is judged (it never trains on them).
 GATE_SHARE = 0.2
 
@@ -67,28 +70,27 @@ def best_copy_lag(
 
 
 def fit_ridge(
-    features: np.ndarray, targets: np.ndarray, groups: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    features: np.ndarray, targets: np.ndarray, groups: np.ndarray, alphas: tuple[float, ...] = RIDGE_ALPHAS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ridge regression targets ≈ features @ W + b on standardised features (the intercept not penalised), the
-    strength of each target column chosen from ``RIDGE_ALPHAS`` by the squared error of its held-out predictions:
-    leave one episode out (``groups``; over ``MAX_FOLDS`` episodes, that many folds of them; a single episode, five
-    blocks of frames). Each fold is solved from per-fold sums (ZᵀZ, Zᵀy), so the cost does not grow with folds ×
-    frames. Returns W and b in the features' own units, and the alphas."""
+    strength of each target column chosen from ``alphas`` by the squared error of its held-out predictions: each
+    episode (``groups``, in frame order) cut into ``BLOCKS`` contiguous blocks, one block left out at a time (over
+    ``MAX_FOLDS`` blocks, that many folds of them). Blocks rather than whole episodes: with two labelled episodes,
+    two folds chose the strength by chance. Each fold is solved from per-fold sums (ZᵀZ, Zᵀy), so the cost does not
+    grow with folds × frames. Returns W and b in the features' own units, the alphas and their held-out squared
+    errors."""
     features, targets = np.asarray(features, np.float64), np.asarray(targets, np.float64)
     mean, std = features.mean(axis=0), features.std(axis=0) + 1e-6
     scaled = np.concatenate([(features - mean) / std, np.ones((len(features), 1))], axis=1)
-    labels = np.unique(groups, return_inverse=True)[1].reshape(-1)
-    if labels.max(initial=0) == 0:
-        labels = np.arange(len(features)) * 5 // max(len(features), 1)
-    folds = labels % MAX_FOLDS
+    folds = episode_blocks(groups) % MAX_FOLDS
     stats = [
         (scaled[fold].T @ scaled[fold], scaled[fold].T @ targets[fold], (targets[fold] ** 2).sum(axis=0))
         for fold in (folds == f for f in np.unique(folds))
     ]
     gram, moment = sum(g for g, _, _ in stats), sum(m for _, m, _ in stats)
     penalty = np.diag(np.r_[np.ones(features.shape[1]), 0.0])
-    errors = np.zeros((len(RIDGE_ALPHAS), targets.shape[1]))
-    for n, alpha in enumerate(RIDGE_ALPHAS):
+    errors = np.zeros((len(alphas), targets.shape[1]))
+    for n, alpha in enumerate(alphas):
         for fold_gram, fold_moment, fold_square in stats:
             coef = np.linalg.solve(gram - fold_gram + alpha * penalty, moment - fold_moment)
             predicted_square = (coef * (fold_gram @ coef)).sum(axis=0)
@@ -96,9 +98,21 @@ def fit_ridge(
     chosen = errors.argmin(axis=0)
     coef = np.zeros((scaled.shape[1], targets.shape[1]))
     for n in np.unique(chosen):
-        coef[:, chosen == n] = np.linalg.solve(gram + RIDGE_ALPHAS[n] * penalty, moment[:, chosen == n])
+        coef[:, chosen == n] = np.linalg.solve(gram + alphas[n] * penalty, moment[:, chosen == n])
     weight = coef[:-1] / std[:, None]
-    return weight, coef[-1] - mean @ weight, np.asarray(RIDGE_ALPHAS)[chosen]
+    held_out = errors[chosen, np.arange(targets.shape[1])]
+    return weight, coef[-1] - mean @ weight, np.asarray(alphas)[chosen], held_out
+
+
+def episode_blocks(groups: np.ndarray) -> np.ndarray:
+    """A block number per frame: each episode's frames (in order) cut into ``BLOCKS`` contiguous blocks."""
+    episodes, index = np.unique(groups, return_inverse=True)
+    index = index.reshape(-1)
+    position = np.zeros(len(groups), dtype=np.int64)
+    for episode in range(len(episodes)):
+        rows = np.flatnonzero(index == episode)
+        position[rows] = np.arange(len(rows)) * BLOCKS // max(len(rows), 1)
+    return index * BLOCKS + position
 
 
 def gate_weights(residual: np.ndarray, correction: np.ndarray) -> np.ndarray:
@@ -155,13 +169,22 @@ class JointIDM(nn.Module):
         return self.net(own.transpose(1, 2).reshape(len(own), -1, 1)).squeeze(-1)
 
     def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray) -> dict[str, list[float]]:
-        """The linear parts in closed form from labelled windows (N, F, D) and actions (N, A): the ridge on the
-        residual a_t − s_{t+lag} (shrunk towards the copy) and the plain reference ridge on a_t."""
+        """The linear parts in closed form from labelled windows (N, F, D) and actions (N, A): per joint, the ridge
+        on the residual a_t − s_{t+lag} (shrunk towards the copy) or on a_t itself, whichever predicts held-out
+        blocks better (``ridge_alpha``: its strength, negative for the fit on a_t), and the plain reference ridge
+        on a_t (``REFERENCE_ALPHA``)."""
         flat = windows.reshape(len(windows), -1).astype(np.float64)
         columns = self.columns.cpu().numpy()
-        copied = windows[:, self.copy_frame][:, columns]
-        weight, bias, alpha = fit_ridge(flat, actions - copied, episodes)
-        reference_weight, reference_bias, reference_alpha = fit_ridge(flat, actions, episodes)
+        copy = np.zeros((flat.shape[1], len(columns)))  # the copy of s_{t+lag} as a linear map of the window
+        copy[self.copy_frame * windows.shape[2] + columns, np.arange(len(columns))] = 1.0
+        weight, bias, alpha, error = fit_ridge(flat, actions - flat @ copy, episodes)
+        # A joint whose held-out error is lower without the copy (shrunk towards 0, not towards the copy) takes
+        # that fit: the linear part is then the better of the two by the same cross-validation.
+        plain_weight, plain_bias, plain_alpha, plain_error = fit_ridge(flat, actions, episodes)
+        plain = plain_error < error
+        weight = np.where(plain, plain_weight - copy, weight)
+        bias, alpha = np.where(plain, plain_bias, bias), np.where(plain, -plain_alpha, alpha)
+        reference_weight, reference_bias, *_ = fit_ridge(flat, actions, episodes, (REFERENCE_ALPHA,))
         device = self.weight.device
         as_buffer = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32, device=device)  # noqa: E731
         self.weight.copy_(as_buffer(weight))
@@ -170,4 +193,4 @@ class JointIDM(nn.Module):
         self.reference_bias.copy_(as_buffer(reference_bias))
         self.scale.copy_(as_buffer(windows.reshape(-1, windows.shape[-1]).std(axis=0) + 1e-3))
         self.fitted.fill_(True)
-        return {"ridge_alpha": alpha.tolist(), "reference_alpha": reference_alpha.tolist()}
+        return {"ridge_alpha": alpha.tolist()}
