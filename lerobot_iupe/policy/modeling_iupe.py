@@ -42,7 +42,7 @@ class IUPEPolicy(PreTrainedPolicy):
         self.idm_columns = None if len(columns) == layout.size else torch.as_tensor(columns)
         if config.joint_idm:  # a position-controlled arm: its own model over the joint states
             self.idm_encoder = JointIDM(
-                config.idm_window, config.idm_lag, config.joint_state_columns, len(columns), config.hidden_dim // 2
+                config.idm_window, config.idm_lag, config.joint_state_columns, len(columns), config.hidden_dim
             )
             self.pm_encoder = (
                 FusedEncoder(layout, history, config)
