@@ -6,8 +6,6 @@ from __future__ import annotations
 import numpy as np
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_iupe.policy.train_run import lerobot_train_config
-
 
 def action_space_from_dataset(config, dataset_meta) -> None:
     """Set ``config``'s action space (an ``IUPEConfig``) from a labelled dataset without an env: integer actions
@@ -43,24 +41,6 @@ def feature_names(feature: dict | None) -> list[str] | None:
     if isinstance(names, dict):
         names = next(iter(names.values()), None)
     return [str(n) for n in names] if isinstance(names, list) else None
-
-
-def lag_of_dataset(dataset_meta, columns: list[int]) -> int:
-    """The lag at which a labelled dataset's actions best match its future joint states (``best_copy_lag``)."""
-    from lerobot.datasets import LeRobotDataset
-
-    from lerobot_iupe.data.episodes import column_array
-    from lerobot_iupe.policy.joint_idm import best_copy_lag, max_lag
-
-    hf = LeRobotDataset(dataset_meta.repo_id, root=dataset_meta.root, video_backend="pyav").hf_dataset
-    states = column_array(hf, OBS_STATE).astype(np.float64).reshape(len(hf), -1)
-    actions = column_array(hf, ACTION).astype(np.float64).reshape(len(hf), -1)
-    episodes = column_array(hf, "episode_index").reshape(-1)
-    train_cfg = lerobot_train_config()  # only the episodes this run trains on (--dataset.episodes)
-    if train_cfg is not None and train_cfg.dataset.episodes is not None:
-        keep = np.isin(episodes, np.asarray(train_cfg.dataset.episodes))
-        states, actions, episodes = states[keep], actions[keep], episodes[keep]
-    return best_copy_lag(states, actions, episodes, columns, max_lag(dataset_meta.fps))
 
 
 def check_binary_action_dims(config) -> None:

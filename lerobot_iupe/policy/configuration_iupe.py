@@ -8,12 +8,8 @@ from lerobot.configs import PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_iupe.policy.action_space import (
-    action_space_from_dataset,
-    check_binary_action_dims,
-    feature_names,
-    lag_of_dataset,
-)
+from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims, feature_names
+from lerobot_iupe.policy.joint_fit import lag_of_dataset
 from lerobot_iupe.policy.joint_idm import joint_state_columns
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 

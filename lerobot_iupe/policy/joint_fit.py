@@ -1,6 +1,7 @@
-"""Fitting the arm model (``joint_idm.JointIDM``) inside a supervised ``lerobot-train`` run: its linear parts in
-closed form on the first step, its network on every step on all but the last ``GATE_SHARE`` of each labelled episode,
-and its per-joint gate, whenever a checkpoint is saved, on those last frames."""
+"""Fitting the arm model (``joint_idm.JointIDM``) inside a supervised ``lerobot-train`` run: its lag when the policy
+is built, its linear parts in closed form on the first step, its network on every step on all but the last
+``GATE_SHARE`` of each labelled episode, and its per-joint gate, whenever a checkpoint is saved, on those last
+frames."""
 
 from __future__ import annotations
 
@@ -8,23 +9,36 @@ import logging
 
 import numpy as np
 import torch
-from lerobot.utils.constants import OBS_STATE
+from lerobot.datasets import LeRobotDataset
+from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import nn
 
+from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.readers import ExpertFrames
-from lerobot_iupe.policy.joint_idm import GATE_SHARE, gate_weights
-from lerobot_iupe.policy.train_run import lerobot_train_config
+from lerobot_iupe.policy.joint_idm import GATE_SHARE, best_copy_lag, gate_weights, max_lag
+from lerobot_iupe.policy.train_run import training_episodes
 
 log = logging.getLogger("lerobot_iupe")
 
 
-def labelled_rows(expert: ExpertFrames) -> np.ndarray:
-    """The rows of the episodes this run trains on (lerobot-train's ``--dataset.episodes``; all by default)."""
-    cfg = lerobot_train_config()
-    chosen = cfg.dataset.episodes if cfg is not None else None
+def labelled_rows(episodes: np.ndarray) -> np.ndarray:
+    """The rows (of a dataset whose rows belong to ``episodes``) that this run trains on: lerobot-train's
+    ``--dataset.episodes``, all by default."""
+    chosen = training_episodes()
     if chosen is None:
-        return np.arange(len(expert.episodes))
-    return np.flatnonzero(np.isin(expert.episodes, np.asarray(chosen)))
+        return np.arange(len(episodes))
+    return np.flatnonzero(np.isin(episodes, np.asarray(chosen)))
+
+
+def lag_of_dataset(dataset_meta, columns: list[int]) -> int:
+    """The lag at which the labelled episodes' actions best match their future joint states (``best_copy_lag``),
+    read before the policy is built: it sets the IDM's window."""
+    hf = LeRobotDataset(dataset_meta.repo_id, root=dataset_meta.root, video_backend="pyav").hf_dataset
+    episodes = column_array(hf, "episode_index").reshape(-1)
+    rows = labelled_rows(episodes)
+    states = column_array(hf, OBS_STATE).astype(np.float64).reshape(len(hf), -1)[rows]
+    actions = column_array(hf, ACTION).astype(np.float64).reshape(len(hf), -1)[rows]
+    return best_copy_lag(states, actions, episodes[rows], columns, max_lag(dataset_meta.fps))
 
 
 def gate_rows(expert: ExpertFrames, rows: np.ndarray) -> np.ndarray:
@@ -42,7 +56,7 @@ class JointFit:
 
     def __init__(self, policy: nn.Module, expert: ExpertFrames, resume: bool):
         self.policy, self.expert = policy, expert
-        rows = labelled_rows(expert)
+        rows = labelled_rows(expert.episodes)
         rows = rows[expert.first_row[rows] != expert.last_row[rows]]  # a one-frame episode has no window
         held = gate_rows(expert, rows)
         self.train_rows, self.gate_rows = rows[~held], rows[held]

@@ -35,3 +35,9 @@ def resuming() -> bool:
     """Whether this is ``lerobot-train --resume=true`` (continue the saved run exactly), not a new run."""
     cfg = lerobot_train_config()
     return bool(cfg is not None and cfg.resume)
+
+
+def training_episodes() -> list[int] | None:
+    """The episodes the ``lerobot-train`` run building this policy trains on (``--dataset.episodes``); None: all."""
+    cfg = lerobot_train_config()
+    return None if cfg is None else cfg.dataset.episodes
