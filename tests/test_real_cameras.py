@@ -222,10 +222,10 @@ def test_a_relabel_whose_decoding_process_dies_stops_with_an_error(arm_run, data
     from lerobot_iupe.relabel.config import RelabelConfig
     from lerobot_iupe.relabel.run import relabel
 
-    def killed(reader, spans, out) -> None:
+    def killed(*args) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
-    monkeypatch.setattr(labelling, "_decode_spans", killed)
+    monkeypatch.setattr(labelling, "_work", killed)
     root = arm(data_dir, "arm-480-state-only", episodes=3, frames_per_episode=24, with_actions=False)
     config = RelabelConfig()
     config.policy.path, config.dataset.root, config.dataset.repo_id = str(arm_run / CHECKPOINT), str(root), "local/x"

@@ -28,7 +28,7 @@ from lerobot_iupe.envs.configs import make_envs
 from lerobot_iupe.ilpo.latent_model import ActionRemappingNetwork
 from lerobot_iupe.policy.algorithm import selects
 from lerobot_iupe.policy.rollouts import PolicyRollouts
-from lerobot_iupe.policy.train_run import lerobot_train_config, resuming
+from lerobot_iupe.policy.train_run import lerobot_train_config, read_no_cameras_in_lerobot_train, resuming
 
 log = logging.getLogger("lerobot_iupe")
 STATE_FILE = "ilpo_training_state.pt"
@@ -60,6 +60,8 @@ class ILPOTrainer:
         n_latent = self.config.n_latent
         self.wins, self.policy_mass = torch.zeros(n_latent), torch.zeros(n_latent)
         self._expert: ExpertFrames | None = None
+        if cameras := read_no_cameras_in_lerobot_train():
+            log.info(f"ILPO: lerobot-train's loader reads no camera ({', '.join(cameras)}): frames come from the cache")
         saved = Path(self.config.pretrained_path or "") / STATE_FILE
         if self.config.pretrained_path and resuming() and saved.exists():
             state = torch.load(saved, weights_only=True)

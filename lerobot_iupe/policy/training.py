@@ -42,7 +42,7 @@ from lerobot_iupe.policy.algorithm import (
 from lerobot_iupe.policy.idm_fit import fit_idm
 from lerobot_iupe.policy.joint_fit import JointFit
 from lerobot_iupe.policy.rollouts import PolicyRollouts
-from lerobot_iupe.policy.train_run import resuming
+from lerobot_iupe.policy.train_run import read_no_cameras_in_lerobot_train, resuming
 from lerobot_iupe.policy.training_state import CYCLES_FILE, TRAINING_STATE_FILE, TrainingState
 
 log = logging.getLogger("lerobot_iupe")
@@ -65,6 +65,8 @@ class IUPETrainer:
         self.cells: ActionCells | None = None  # continuous actions: the sampling rule's action classes
         self._expert: ExpertFrames | None = None
         self._joint_fit: JointFit | None = None  # the arm model's fit (supervised, joint actions)
+        if cameras := read_no_cameras_in_lerobot_train():
+            log.info(f"IUPE: lerobot-train's loader reads no camera ({', '.join(cameras)}): frames come from the cache")
 
     @property
     def cycles(self) -> list[dict]:

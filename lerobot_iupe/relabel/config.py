@@ -48,6 +48,10 @@ class RelabelConfig:
     # count keeps the labels the same whatever the number of processes; scale out with torchrun (one process per
     # core) rather than threads.
     num_threads: int = 1
+    # Processes that decode the frames and, with --policy.device=cpu, run the IDM on them, each taking whole
+    # episodes: labels are the same whatever the number. Default: one per core this process may use (shared among
+    # torchrun's processes); 0: all in this process.
+    num_workers: int | None = None
     # Replace an `action` feature the dataset already has.
     overwrite: bool = False
     # Label and report statistics, write nothing.
@@ -60,6 +64,8 @@ class RelabelConfig:
             raise ValueError(f"--mode={self.mode} is not known; use one of {list(MODES)}")
         if self.num_threads < 1:
             raise ValueError(f"--num_threads must be at least 1, got {self.num_threads}")
+        if self.num_workers is not None and self.num_workers < 0:
+            raise ValueError(f"--num_workers must be 0 (no worker processes) or more, got {self.num_workers}")
         if self.batch_size < 1:
             raise ValueError(f"--batch_size must be at least 1, got {self.batch_size}")
         if self.dataset.video_backend not in (None, "pyav", "torchcodec"):

@@ -1,5 +1,6 @@
-"""The IDM's labels of every frame with a successor, span by span, on one process or split among several
-(``torchrun``): the labels of an episode do not depend on which process labels it."""
+"""The IDM's labels of every frame with a successor, span by span: decoded and labelled by worker processes that
+take whole episodes (one per core), in one process, or split among several (``torchrun``). The labels of an
+episode do not depend on which process labels it."""
 
 from __future__ import annotations
 
@@ -25,47 +26,98 @@ IDM_BATCH = 32
 LAST_FRAME_RULE = "repeats the label of the frame before it (0 for a one-frame episode)"
 
 
-def _decode_spans(reader: FrameReader, spans: list, out) -> None:
-    """The decoding process: every span's frames (unjoined, as numpy arrays) into ``out``, then None."""
-    torch.set_num_threads(1)  # decoding needs no intra-op threads (and a forked child must not start a pool)
+def available_cores() -> int:
+    """The cores this process may run on (its CPU affinity, as a container or ``taskset`` sets it)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def span_outputs(policy: IUPEPolicy, reader: FrameReader, span: LabelSpan, parts: list, device: str) -> torch.Tensor:
+    """The IDM's outputs (float32, on the CPU) for the frames of ``span``, whose decoded keys are ``parts``."""
+    frames = reader.layout.join(parts)
+    t = np.arange(span.start, span.stop)
+    index = window_indices(t, policy.config.idm_window, np.full(len(t), span.first), np.full(len(t), span.last))
+    frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
+    passes = torch.as_tensor(index - span.lo, device=device).split(IDM_BATCH)
+    return torch.cat([policy.labelling_output(frames[part]).float().cpu() for part in passes])
+
+
+def _work(policy, reader: FrameReader, spans: dict, tasks, out, threads: int, device: str | None) -> None:
+    """A worker process: episodes from ``tasks`` until None, each span's IDM outputs into ``out`` in the episode's
+    order (``device`` None: its decoded frames, for the first process's IDM), then None."""
+    torch.set_num_threads(threads)  # the labelling threads of one process: the same sums, the same labels
     try:
-        for span in spans:
-            out.put((span, [p.numpy() for p in reader.parts(span.episode, span.lo, span.hi)]))
+        while (episode := tasks.get()) is not None:
+            for span in spans[episode]:
+                parts = reader.parts(span.episode, span.lo, span.hi)
+                if device is None:
+                    out.put((span, [p.numpy() for p in parts]))
+                else:
+                    out.put((span, span_outputs(policy, reader, span, parts, device).numpy()))
         out.put(None)
     except BaseException:
         out.put(traceback.format_exc())
 
 
-def decoded_ahead(reader: FrameReader, spans: list[LabelSpan], depth: int = 4):
-    """(span, parts) for every span in order, decoded ahead of the caller in a process of its own, so that one core
-    decodes while another labels whatever holds the GIL. Forked where the OS can (Linux; as torch's DataLoader
-    forks its workers): a spawned process would spend ~4 s importing torch and LeRobot first."""
+def outputs_in_workers(policy: IUPEPolicy, reader: FrameReader, spans: list[LabelSpan], workers: int, device: str):
+    """(span, IDM outputs) for every span, each episode's spans in order, episodes in the order they finish.
+    ``workers`` processes take whole episodes from a queue and decode them; on the CPU they also run the IDM
+    (one per core: a labeller in this process alone would bound the rate at one core's), on a GPU this process
+    does. Forked where the OS can (Linux; as torch's DataLoader forks its workers): a spawned process would spend
+    ~4 s importing torch and LeRobot first."""
     context = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    queue = context.Queue(maxsize=depth)
-    process = context.Process(target=_decode_spans, args=(reader, spans, queue), daemon=True)
-    process.start()
+    by_episode: dict[int, list[LabelSpan]] = {}
+    for span in spans:
+        by_episode.setdefault(span.episode, []).append(span)
+    workers = max(1, min(workers, len(by_episode)))
+    tasks, out = context.Queue(), context.Queue(maxsize=2 * workers)  # bounded: memory follows the workers
+    for episode in by_episode:
+        tasks.put(episode)
+    for _ in range(workers):
+        tasks.put(None)
+    label_here = device != "cpu"
+    args = (policy, reader, by_episode, tasks, out, torch.get_num_threads(), None if label_here else device)
+    processes = [context.Process(target=_work, args=args, daemon=True) for _ in range(workers)]
+    for process in processes:
+        process.start()
     try:
-        while (item := _next_decoded(queue, process)) is not None:
-            if isinstance(item, str):
+        running = workers
+        while running:
+            item = _next_decoded(out, processes)
+            if item is None:
+                running -= 1
+            elif isinstance(item, str):
                 raise RuntimeError(f"decoding the dataset's frames failed:\n{item}")
-            span, parts = item
-            yield span, [torch.from_numpy(p) for p in parts]
+            else:
+                span, result = item
+                if label_here:
+                    result = span_outputs(policy, reader, span, [torch.from_numpy(p) for p in result], device)
+                    yield span, result
+                else:
+                    yield span, torch.from_numpy(result)
     finally:
-        process.kill()
-        process.join()
+        for process in processes:
+            process.kill()
+            process.join()
 
 
-def _next_decoded(queue, process):
-    """The decoding process's next item; an error if it died without saying why (killed, e.g. out of memory)."""
+def outputs_in_process(policy: IUPEPolicy, reader: FrameReader, spans: list[LabelSpan], device: str):
+    """(span, IDM outputs) for every span in order, decoded and labelled in this process (``--num_workers=0``)."""
+    for span in spans:
+        yield span, span_outputs(policy, reader, span, reader.parts(span.episode, span.lo, span.hi), device)
+
+
+def _next_decoded(queue, processes: list):
+    """The workers' next item; an error if one died without saying why (killed, e.g. out of memory)."""
     while True:
         try:
             return queue.get(timeout=5)
         except Empty:
-            if not process.is_alive():
-                raise RuntimeError(
-                    f"the process decoding the dataset's frames died (exit code {process.exitcode}); if it was killed "
-                    "for memory, lower --batch_size"
-                ) from None
+            for process in processes:
+                if process.exitcode not in (None, 0):
+                    raise RuntimeError(
+                        f"a process decoding the dataset's frames died (exit code {process.exitcode}); if it was "
+                        "killed for memory, lower --batch_size or --num_workers"
+                    ) from None
 
 
 def episode_generator(seed: int, episode: int) -> torch.Generator:
@@ -82,25 +134,25 @@ def label_spans_with_idm(
     seed: int,
     device: str = "cpu",
     progress: bool = True,
+    workers: int = 0,
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Labels (int64 ids, or float32 vectors) and confidences of the frames of ``spans``, by episode; each
-    episode's last frame follows ``LAST_FRAME_RULE``. Reading runs ahead in a background thread."""
+    episode's last frame follows ``LAST_FRAME_RULE``. Decoded (and on the CPU labelled) by ``workers`` processes
+    (``outputs_in_workers``), or in this one (0); the labels are the same either way: an episode's spans are
+    labelled in order, with the episode's own draws."""
     # Labels are chosen on the CPU from the IDM's outputs, whatever device it runs on: the episode's generator is a
     # CPU one, and a CUDA IDM then labels as the CPU one does.
     config, head = policy.config, copy.deepcopy(policy.idm_head).cpu()
-    offsets = config.idm_window
     results: dict[int, tuple[list, list]] = {}
     generators: dict[int, torch.Generator] = {}
+    if workers:
+        outputs = outputs_in_workers(policy, reader, spans, workers, device)
+    else:
+        outputs = outputs_in_process(policy, reader, spans, device)
 
     total = sum(span.stop - span.start for span in spans)
     with tqdm(total=total, desc="relabel", unit="frame", unit_scale=True, disable=not progress) as bar:
-        for span, parts in decoded_ahead(reader, spans):
-            frames = reader.layout.join(parts)
-            t = np.arange(span.start, span.stop)
-            index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last)) - span.lo
-            frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
-            passes = torch.as_tensor(index, device=device).split(IDM_BATCH)
-            output = torch.cat([policy.labelling_output(frames[part]).float().cpu() for part in passes])
+        for span, output in outputs:
             generator = generators.setdefault(span.episode, episode_generator(seed, span.episode))
             chosen = head.choose(output, mode == "sample", generator)
             if config.is_continuous:
@@ -111,7 +163,7 @@ def label_spans_with_idm(
             labels, confidences = results.setdefault(span.episode, ([], []))
             labels.append(chosen.numpy())
             confidences.append(confidence.numpy())
-            bar.update(len(t))
+            bar.update(span.stop - span.start)
     return {episode: (np.concatenate(labels), np.concatenate(conf)) for episode, (labels, conf) in results.items()}
 
 

@@ -35,6 +35,7 @@ from lerobot_iupe.relabel.checks import (
 from lerobot_iupe.relabel.config import RelabelConfig, RelabelReport
 from lerobot_iupe.relabel.labelling import (
     assemble_labels,
+    available_cores,
     gather_on_first,
     label_spans_with_idm,
     last_frame_mask,
@@ -81,7 +82,8 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     bounds = episode_bounds(meta)
     spans = label_spans(bounds, cfg.batch_size, config.idm_window, list(range(rank, len(bounds), world)))
     reader = FrameReader(dataset, keys, config.layout_of(keys), backend)
-    per_episode = label_spans_with_idm(policy, reader, spans, cfg.mode, cfg.seed, device, progress=rank == 0)
+    workers = max(1, available_cores() // world) if cfg.num_workers is None else cfg.num_workers
+    per_episode = label_spans_with_idm(policy, reader, spans, cfg.mode, cfg.seed, device, rank == 0, workers)
     per_episode = gather_on_first(per_episode, world)
     if world > 1:  # no collective after this; a group left alive aborts the process at exit (gloo's threads)
         dist.destroy_process_group()
