@@ -1,0 +1,259 @@
+"""Speed at real size, before and after, in one run on one machine: the code of a baseline revision (a git worktree
+put first on PYTHONPATH) and this tree, on the same data.
+
+- Training steps/s of ``lerobot-train`` with default flags (batch 8, LeRobot's 4 loader workers) on the two-camera
+  640×480 arm recording (``lerobot_iupe.data.arm_recording``): the camera IDM (``--policy.joint_state_columns=[]``)
+  and the default one for an arm (joint states). Steps/s is 1 / (update + data time) as lerobot-train logs them,
+  over the later half of the run (the frame cache is built in the first logging interval).
+- The 64×64 path: supervised training on a maze expert recording (video cameras), same data and steps.
+- Relabelling frames/s with the camera IDM, 1 and all worker processes, against a plain decode of the same videos
+  with as many processes (each decoding a contiguous share of every video whole, full size, one thread), and peak
+  memory (``/usr/bin/time``).
+
+    python scripts/measure_speed.py [--frames 2000] [--baseline d03e093] [--steps 300] [--work outputs/speed]
+
+Writes benchmarks/speed.json and benchmarks/speed.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+BIN = Path(sys.executable).parent
+REPO = Path(__file__).resolve().parent.parent
+CHECKPOINT = "checkpoints/last/pretrained_model"
+EPISODE_FRAMES = 250
+
+
+def run(command: list[str], env: dict) -> tuple[str, float, float]:
+    """Run ``command``: its output, wall seconds and peak resident GB (largest process, ``/usr/bin/time``)."""
+    print("$", " ".join(command), flush=True)
+    start = time.perf_counter()
+    result = subprocess.run(
+        ["/usr/bin/time", "-f", "MAXRSS_KB %M", *command], capture_output=True, text=True, env={**os.environ, **env}
+    )
+    seconds = time.perf_counter() - start
+    output = result.stdout + result.stderr
+    if result.returncode:
+        print(output[-4000:])
+        raise SystemExit(f"{command[0]} failed ({result.returncode})")
+    return output, seconds, int(re.findall(r"MAXRSS_KB (\d+)", output)[-1]) / 1024**2
+
+
+def code_env(code: Path | None, cache: Path) -> dict:
+    """The environment that runs the code of ``code`` (a worktree; None: this tree) with a shared frame cache."""
+    env = {"LEROBOT_IUPE_CACHE": str(cache), "PYTHONPATH": str(code or REPO)}
+    return env
+
+
+def worktree(work: Path, revision: str) -> Path:
+    path = work / f"code-{revision}"
+    if not path.exists():
+        subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", str(path), revision], check=True)
+    return path
+
+
+def steps_per_s(output: str) -> float:
+    updates = [(float(u), float(d)) for u, d in re.findall(r"updt_s:([\d.]+) data_s:([\d.]+)", output)]
+    later = updates[len(updates) // 2 :]
+    return 1.0 / float(np.mean([u + d for u, d in later]))
+
+
+def train(root: Path, out: Path, steps: int, env: dict, *extra: str) -> dict:
+    output, seconds, peak = run(
+        [str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
+         f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", f"--output_dir={out}",
+         f"--steps={steps}", f"--save_freq={steps}", f"--log_freq={max(1, steps // 6)}", "--policy.device=cpu",
+         "--wandb.enable=false", *extra],
+        env,
+    )  # fmt: skip
+    return {"steps_per_s": steps_per_s(output), "seconds": seconds, "peak_rss_gb": peak}
+
+
+def plain_decode(root: Path, backend: str, share: int, shares: int) -> int:
+    """Decode share ``share`` of ``shares`` (contiguous frames) of every video of ``root`` whole at full size on one
+    thread; the frames decoded."""
+    import av
+    import torch
+
+    torch.set_num_threads(1)
+    frames = 0
+    for path in sorted((root / "videos").rglob("*.mp4")):
+        if backend == "torchcodec":
+            from torchcodec.decoders import VideoDecoder
+
+            decoder = VideoDecoder(str(path), num_ffmpeg_threads=1)
+            total = decoder.metadata.num_frames
+            lo, hi = total * share // shares, total * (share + 1) // shares
+            for first in range(lo, hi, 256):
+                frames += len(decoder.get_frames_in_range(first, min(first + 256, hi)).data)
+        else:
+            container = av.open(str(path))
+            stream = container.streams.video[0]
+            stream.thread_type = "NONE"
+            total = stream.frames
+            lo, hi = total * share // shares, total * (share + 1) // shares
+            container.seek(int(lo / stream.average_rate / stream.time_base), stream=stream, backward=True)
+            for frame in container.decode(stream):
+                index = round(frame.time * float(stream.average_rate))
+                if index >= hi:
+                    break
+                if index >= lo:
+                    frame.to_ndarray(format="rgb24")
+                    frames += 1
+    return frames
+
+
+def plain_decode_rate(root: Path, backend: str, processes: int) -> float:
+    """Dataset frames/s of ``processes`` fresh processes decoding every camera's videos whole between them."""
+    cameras = len({p.relative_to(root / "videos").parts[0] for p in (root / "videos").rglob("*.mp4")})
+    commands = [[sys.executable, __file__, "--decode", str(root), "--backend", backend, "--share", str(i),
+                 "--shares", str(processes)] for i in range(processes)]  # fmt: skip
+    start = time.perf_counter()
+    children = [subprocess.Popen(c, stdout=subprocess.PIPE, text=True) for c in commands]
+    frames = sum(int(child.communicate()[0].split()[-1]) for child in children)
+    return frames / cameras / (time.perf_counter() - start)
+
+
+def relabel(checkpoint: Path, root: Path, env: dict, *extra: str) -> dict:
+    output, seconds, peak = run(
+        [str(BIN / "lerobot-iupe-relabel"), f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}",
+         f"--dataset.root={root}", "--dry_run=true", *extra],
+        env,
+    )  # fmt: skip
+    return {"frames_per_s": float(re.search(r"\((\d+) frames/s\)", output).group(1)), "peak_rss_gb": peak}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=2000, help="frames of the camera recording")
+    parser.add_argument("--baseline", default="d03e093", help="the revision measured as 'before'")
+    parser.add_argument("--steps", type=int, default=300, help="training steps of each run")
+    parser.add_argument("--backend", default="torchcodec", help="the decoder of relabelling and the plain decode")
+    parser.add_argument("--work", type=Path, default=Path("outputs/speed"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks"))
+    parser.add_argument("--only", nargs="+", default=["train", "maze", "relabel"])
+    parser.add_argument("--decode", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--share", type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument("--shares", type=int, default=1, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.decode:
+        print(plain_decode(args.decode, args.backend, args.share, args.shares))
+        return
+    command = "python scripts/measure_speed.py " + " ".join(sys.argv[1:])
+    work = args.work.resolve()
+    cache = work / "frame-cache"
+    before, after = code_env(worktree(work, args.baseline), cache), code_env(None, cache)
+    root = work / f"arm-{args.frames}"
+    if not (root / "meta" / "info.json").exists():
+        maker = str(REPO / "scripts/make_arm_recording.py")
+        episodes = str(args.frames // EPISODE_FRAMES)
+        subprocess.run([sys.executable, maker, "--root", str(root), "--repo_id", f"local/{root.name}", "--episodes",
+                        episodes], check=True)  # fmt: skip
+    path = args.out / "speed.json"
+    results = json.loads(path.read_text()) if path.exists() else {"commands": {}}
+    cores = len(os.sched_getaffinity(0))
+    machine = f"{cores} cores"
+
+    if "train" in args.only:
+        rows = []
+        for idm, extra in (("camera IDM", ["--policy.joint_state_columns=[]"]), ("arm IDM (default)", [])):
+            row = {"idm": idm, "frames": args.frames, "steps": args.steps, "machine": machine}
+            for name, env in (("before", before), ("after", after)):
+                out = work / f"train-{name}-{'camera' if extra else 'arm'}-{args.frames}"
+                subprocess.run(["rm", "-rf", str(out)], check=True)
+                row[name] = train(root, out, args.steps, env, *extra)
+            row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
+            print(row, flush=True)
+            rows.append(row)
+        results["train"], results["commands"]["train"] = rows, command
+
+    if "maze" in args.only:
+        maze = work / "maze5-expert"
+        if not (maze / "meta" / "info.json").exists():
+            run([str(BIN / "lerobot-iupe-collect"), "--env.type=maze", "--env.size=5", "--agent=expert",
+                 "--episodes=40", "--keep_actions=true", "--dataset.repo_id=local/maze5-expert",
+                 f"--dataset.root={maze}"], after)  # fmt: skip
+        row = {"data": "maze 5×5, 40 expert episodes, 64×64 video", "steps": args.steps, "machine": machine}
+        for name, env in (("before", before), ("after", after)):
+            out = work / f"train-{name}-maze"
+            subprocess.run(["rm", "-rf", str(out)], check=True)
+            row[name] = train(maze, out, args.steps, env, "--batch_size=64")
+            row[f"{name}_relabel"] = relabel(out / CHECKPOINT, maze, env)
+        row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
+        row["relabel_speedup"] = row["after_relabel"]["frames_per_s"] / row["before_relabel"]["frames_per_s"]
+        print(row, flush=True)
+        results["maze"], results["commands"]["maze"] = [row], command
+
+    if "relabel" in args.only:
+        checkpoint = work / f"train-after-camera-{args.frames}" / CHECKPOINT
+        rows = []
+        backend = f"--dataset.video_backend={args.backend}"
+        before_rate = relabel(checkpoint, root, before, backend)
+        for workers in sorted({1, cores}):
+            plain = plain_decode_rate(root, args.backend, workers)
+            measured = relabel(checkpoint, root, after, backend, f"--num_workers={workers}")
+            rows.append({
+                "frames": args.frames, "backend": args.backend, "processes": workers, "machine": machine,
+                "relabel_frames_per_s": measured["frames_per_s"], "peak_rss_gb": measured["peak_rss_gb"],
+                "plain_decode_frames_per_s": plain, "ratio": measured["frames_per_s"] / plain,
+                "before_frames_per_s": before_rate["frames_per_s"], "before_peak_rss_gb": before_rate["peak_rss_gb"],
+            })  # fmt: skip
+            print(rows[-1], flush=True)
+        results["relabel"], results["commands"]["relabel"] = rows, command
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(results, indent=1) + "\n")
+    render(results, args.out / "speed.md")
+
+
+def render(results: dict, page: Path) -> None:
+    lines = ["# Speed at real size", "", "Every ratio is measured in one run of the script on one machine, the "
+             "baseline revision's code beside this tree's, on the same data. Written by `scripts/measure_speed.py`.",
+             ""]  # fmt: skip
+    if "train" in results:
+        lines += ["## Training (lerobot-train, default flags, batch 8)", "", f"`{results['commands']['train']}`", "",
+                  "| IDM | frames | steps | machine | before steps/s | after steps/s | speedup | before peak GB | "
+                  "after peak GB |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for r in results["train"]:
+            b, a = r["before"], r["after"]
+            lines.append(f"| {r['idm']} | {r['frames']:,} | {r['steps']} | {r['machine']} | {b['steps_per_s']:.1f} | "
+                         f"{a['steps_per_s']:.1f} | {r['speedup']:.2f}× | {b['peak_rss_gb']:.2f} | "
+                         f"{a['peak_rss_gb']:.2f} |")  # fmt: skip
+        lines.append("")
+    if "maze" in results:
+        lines += ["## The 64×64 path", "", f"`{results['commands']['maze']}`", "",
+                  "| data | steps | before steps/s | after steps/s | speedup | before relabel frames/s | "
+                  "after relabel frames/s | ratio |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for r in results["maze"]:
+            lines.append(f"| {r['data']} (batch 64) | {r['steps']} | {r['before']['steps_per_s']:.1f} | "
+                         f"{r['after']['steps_per_s']:.1f} | {r['speedup']:.2f}× | "
+                         f"{r['before_relabel']['frames_per_s']:.0f} | {r['after_relabel']['frames_per_s']:.0f} | "
+                         f"{r['relabel_speedup']:.2f}× |")  # fmt: skip
+        lines.append("")
+    if "relabel" in results:
+        lines += ["## Relabelling with the camera IDM", "", f"`{results['commands']['relabel']}`", "",
+                  "| frames | decoder | processes | machine | relabel frames/s | plain decode frames/s (same "
+                  "processes) | ratio | peak GB | before frames/s (one decoding process) | before peak GB |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for r in results["relabel"]:
+            lines.append(f"| {r['frames']:,} | {r['backend']} | {r['processes']} | {r['machine']} | "
+                         f"{r['relabel_frames_per_s']:.0f} | {r['plain_decode_frames_per_s']:.0f} | "
+                         f"{r['ratio']:.2f} | {r['peak_rss_gb']:.2f} | {r['before_frames_per_s']:.0f} | "
+                         f"{r['before_peak_rss_gb']:.2f} |")  # fmt: skip
+        lines.append("")
+    page.write_text("\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
