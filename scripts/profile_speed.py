@@ -34,8 +34,9 @@ PHASES = {
 
 
 def profile(command: list[str], env: dict, out: Path) -> pstats.Stats:
+    """``command`` under cProfile; -P keeps the working directory off sys.path, so PYTHONPATH chooses the code."""
     print("$", " ".join(command), flush=True)
-    result = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(out), *command], capture_output=True,
+    result = subprocess.run([sys.executable, "-P", "-m", "cProfile", "-o", str(out), *command], capture_output=True,
                             text=True, env={**os.environ, **env})  # fmt: skip
     if result.returncode:
         print(result.stdout[-3000:], result.stderr[-3000:])
