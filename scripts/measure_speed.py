@@ -141,7 +141,8 @@ def main() -> None:
     parser.add_argument("--backend", default="torchcodec", help="the decoder of relabelling and the plain decode")
     parser.add_argument("--work", type=Path, default=Path("outputs/speed"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks"))
-    parser.add_argument("--only", nargs="+", default=["train", "maze", "relabel"])
+    parser.add_argument("--only", nargs="+", default=["train", "maze", "relabel"], help="which measurements to run")
+    parser.add_argument("--processes", type=int, nargs="+", help="relabelling workers (default: 1 and every core)")
     parser.add_argument("--decode", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--share", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--shares", type=int, default=1, help=argparse.SUPPRESS)
@@ -175,7 +176,7 @@ def main() -> None:
             row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
             print(row, flush=True)
             rows.append(row)
-        results["train"], results["commands"]["train"] = rows, command
+        keep(results, "train", rows, command, ("frames", "idm"))
 
     if "maze" in args.only:
         maze = work / "maze5-expert"
@@ -192,14 +193,14 @@ def main() -> None:
         row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
         row["relabel_speedup"] = row["after_relabel"]["frames_per_s"] / row["before_relabel"]["frames_per_s"]
         print(row, flush=True)
-        results["maze"], results["commands"]["maze"] = [row], command
+        keep(results, "maze", [row], command, ("data",))
 
     if "relabel" in args.only:
         checkpoint = work / f"train-after-camera-{args.frames}" / CHECKPOINT
         rows = []
         backend = f"--dataset.video_backend={args.backend}"
         before_rate = relabel(checkpoint, root, before, backend)
-        for workers in sorted({1, cores}):
+        for workers in args.processes or sorted({1, cores}):
             plain = plain_decode_rate(root, args.backend, workers)
             measured = relabel(checkpoint, root, after, backend, f"--num_workers={workers}")
             rows.append({
@@ -209,11 +210,25 @@ def main() -> None:
                 "before_frames_per_s": before_rate["frames_per_s"], "before_peak_rss_gb": before_rate["peak_rss_gb"],
             })  # fmt: skip
             print(rows[-1], flush=True)
-        results["relabel"], results["commands"]["relabel"] = rows, command
+        keep(results, "relabel", rows, command, ("frames", "processes"))
 
     args.out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(results, indent=1) + "\n")
     render(results, args.out / "speed.md")
+
+
+def keep(results: dict, section: str, rows: list[dict], command: str, key: tuple[str, ...]) -> None:
+    """Put ``rows`` into ``section`` in place of those with the same ``key``; the section's commands so far."""
+    new = {tuple(r[k] for k in key) for r in rows}
+    results[section] = [r for r in results.get(section, []) if tuple(r[k] for k in key) not in new] + rows
+    commands = results["commands"].get(section, [])
+    commands = [commands] if isinstance(commands, str) else commands
+    results["commands"][section] = commands + [command] if command not in commands else commands
+
+
+def commands_of(results: dict, section: str) -> str:
+    commands = results["commands"][section]
+    return ", ".join(f"`{c}`" for c in ([commands] if isinstance(commands, str) else commands))
 
 
 def render(results: dict, page: Path) -> None:
@@ -221,7 +236,7 @@ def render(results: dict, page: Path) -> None:
              "baseline revision's code beside this tree's, on the same data. Written by `scripts/measure_speed.py`.",
              ""]  # fmt: skip
     if "train" in results:
-        lines += ["## Training (lerobot-train, default flags, batch 8)", "", f"`{results['commands']['train']}`", "",
+        lines += ["## Training (lerobot-train, default flags, batch 8)", "", commands_of(results, "train"), "",
                   "| IDM | frames | steps | machine | before steps/s | after steps/s | speedup | before peak GB | "
                   "after peak GB |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["train"]:
@@ -231,7 +246,7 @@ def render(results: dict, page: Path) -> None:
                          f"{a['peak_rss_gb']:.2f} |")  # fmt: skip
         lines.append("")
     if "maze" in results:
-        lines += ["## The 64×64 path", "", f"`{results['commands']['maze']}`", "",
+        lines += ["## The 64×64 path", "", commands_of(results, "maze"), "",
                   "| data | steps | before steps/s | after steps/s | speedup | before relabel frames/s | "
                   "after relabel frames/s | ratio |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["maze"]:
@@ -241,7 +256,7 @@ def render(results: dict, page: Path) -> None:
                          f"{r['relabel_speedup']:.2f}× |")  # fmt: skip
         lines.append("")
     if "relabel" in results:
-        lines += ["## Relabelling with the camera IDM", "", f"`{results['commands']['relabel']}`", "",
+        lines += ["## Relabelling with the camera IDM", "", commands_of(results, "relabel"), "",
                   "| frames | decoder | processes | machine | relabel frames/s | plain decode frames/s (same "
                   "processes) | ratio | peak GB | before frames/s (one decoding process) | before peak GB |",
                   "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

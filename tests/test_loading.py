@@ -9,6 +9,7 @@ import shutil
 import lerobot.datasets.dataset_reader as dataset_reader
 import numpy as np
 import pytest
+import torch
 from conftest import CHECKPOINT, run_in_process
 from lerobot.datasets import LeRobotDataset
 from test_real_cameras import arm
@@ -91,3 +92,25 @@ def test_a_relabel_by_worker_processes_writes_the_labels_of_one_process(camera_r
         labels[workers] = action_array(LeRobotDataset("local/x", root=root))
     assert labels[0].shape == (60, 6) and np.isfinite(labels[0]).all()
     assert np.array_equal(labels[1], labels[0]) and np.array_equal(labels[3], labels[0])
+
+
+def test_workers_that_only_decode_feed_the_first_process_the_same_outputs(camera_run, arm_small):
+    """The GPU's pipeline (workers decode, the first process runs the IDM), run on the CPU: every span's IDM
+    outputs equal those of decoding and labelling in one process, each episode's spans in order."""
+    from lerobot_iupe.data.readers import FrameReader, episode_bounds, label_spans
+    from lerobot_iupe.relabel.checks import check_labelable, load_idm
+    from lerobot_iupe.relabel.labelling import outputs_in_process, outputs_in_workers
+
+    policy = load_idm(str(camera_run[0] / CHECKPOINT))
+    dataset = LeRobotDataset(f"local/{arm_small.name}", root=arm_small, video_backend="pyav")
+    keys = check_labelable(policy, dataset.meta, overwrite=True, dry_run=True)
+    reader = FrameReader(dataset, keys, policy.config.layout_of(keys), "pyav")
+    spans = label_spans(episode_bounds(dataset.meta), 8, policy.config.idm_window)
+    expected = list(outputs_in_process(policy, reader, spans, "cpu"))
+    got = list(outputs_in_workers(policy, reader, spans, 2, "cpu", label_in_workers=False))
+    assert len(got) == len(expected) == len(spans) > 3
+    for episode in {span.episode for span in spans}:
+        mine = [(s, o) for s, o in got if s.episode == episode]
+        theirs = [(s, o) for s, o in expected if s.episode == episode]
+        assert [s for s, _ in mine] == [s for s, _ in theirs]
+        assert all(torch.equal(a, b) for (_, a), (_, b) in zip(mine, theirs, strict=True))

@@ -80,6 +80,11 @@ class FrameReader:
     def frames(self, episode: int, first: int, lo: int, hi: int) -> Tensor:
         return self.layout.join(self.parts(episode, lo, hi))
 
+    def forget_open_files(self) -> None:
+        """Open new decoders from here on: a forked process must not share its parent's (their state is the
+        parent's)."""
+        self.episode_frames.cameras = {}
+
     def parts(self, episode: int, lo: int, hi: int) -> list[Tensor]:
         """Each key's frames ``lo … hi``, unjoined (cameras uint8 at the working resolution)."""
         return [self.episode_frames.read(key, episode, lo, hi) for key in self.keys]

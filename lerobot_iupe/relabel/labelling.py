@@ -41,10 +41,13 @@ def span_outputs(policy: IUPEPolicy, reader: FrameReader, span: LabelSpan, parts
     return torch.cat([policy.labelling_output(frames[part]).float().cpu() for part in passes])
 
 
-def _work(policy, reader: FrameReader, spans: dict, tasks, out, threads: int, device: str | None) -> None:
+def _work(policy, reader: FrameReader, spans: dict, tasks, out, device: str | None) -> None:
     """A worker process: episodes from ``tasks`` until None, each span's IDM outputs into ``out`` in the episode's
     order (``device`` None: its decoded frames, for the first process's IDM), then None."""
-    torch.set_num_threads(threads)  # the labelling threads of one process: the same sums, the same labels
+    # One thread: the first process's, when these workers label (the same sums, the same labels); a forked child
+    # must not start a thread pool (torch's DataLoader workers do the same).
+    torch.set_num_threads(1)
+    reader.forget_open_files()
     try:
         while (episode := tasks.get()) is not None:
             for span in spans[episode]:
@@ -58,12 +61,20 @@ def _work(policy, reader: FrameReader, spans: dict, tasks, out, threads: int, de
         out.put(traceback.format_exc())
 
 
-def outputs_in_workers(policy: IUPEPolicy, reader: FrameReader, spans: list[LabelSpan], workers: int, device: str):
+def outputs_in_workers(
+    policy: IUPEPolicy,
+    reader: FrameReader,
+    spans: list[LabelSpan],
+    workers: int,
+    device: str,
+    label_in_workers: bool | None = None,
+):
     """(span, IDM outputs) for every span, each episode's spans in order, episodes in the order they finish.
     ``workers`` processes take whole episodes from a queue and decode them; on the CPU they also run the IDM
     (one per core: a labeller in this process alone would bound the rate at one core's), on a GPU this process
-    does. Forked where the OS can (Linux; as torch's DataLoader forks its workers): a spawned process would spend
-    ~4 s importing torch and LeRobot first."""
+    does, and so does a CPU labeller of several threads (``label_in_workers``, default: a CPU labeller of one
+    thread). Forked where the OS can (Linux; as
+    torch's DataLoader forks its workers): a spawned process would spend ~4 s importing torch and LeRobot first."""
     context = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     by_episode: dict[int, list[LabelSpan]] = {}
     for span in spans:
@@ -74,8 +85,10 @@ def outputs_in_workers(policy: IUPEPolicy, reader: FrameReader, spans: list[Labe
         tasks.put(episode)
     for _ in range(workers):
         tasks.put(None)
-    label_here = device != "cpu"
-    args = (policy, reader, by_episode, tasks, out, torch.get_num_threads(), None if label_here else device)
+    if label_in_workers is None:  # a labeller of several threads stays here: a forked child must not start a pool
+        label_in_workers = device == "cpu" and torch.get_num_threads() == 1
+    label_here = not label_in_workers
+    args = (policy, reader, by_episode, tasks, out, None if label_here else device)
     processes = [context.Process(target=_work, args=args, daemon=True) for _ in range(workers)]
     for process in processes:
         process.start()
