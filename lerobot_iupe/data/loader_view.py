@@ -23,13 +23,6 @@ from lerobot.datasets.io_utils import hf_transform_to_torch
 
 log = logging.getLogger("lerobot_iupe")
 
-VISUAL_DTYPES = ("video", "image")
-
-
-def visual_keys(features: dict[str, dict]) -> list[str]:
-    """The dataset's cameras: features stored as video or as PNG images."""
-    return [key for key, feature in features.items() if feature.get("dtype") in VISUAL_DTYPES]
-
 
 class ReaderWithoutCameras(DatasetReader):
     """LeRobot's reader of one dataset, reading by a view of its metadata without the cameras: they are not
@@ -69,11 +62,11 @@ def stop_decoding_cameras(dataset) -> list[str]:
     if not isinstance(dataset, LeRobotDataset):
         log.warning(f"IUPE: lerobot-train's loader decodes every camera of a {type(dataset).__name__} (unchanged)")
         return []
-    cameras = visual_keys(dataset.meta.features)
+    cameras = dataset.meta.camera_keys  # video and PNG image features alike
     if not cameras:
         return []
     reader = dataset._ensure_reader()
-    if type(reader) is not DatasetReader or not hasattr(reader, "_meta") or reader.hf_dataset is None:
+    if type(reader) is not DatasetReader or reader.hf_dataset is None:
         log.warning("IUPE: this LeRobot's dataset reader is not the one known; its loader decodes every camera")
         return []
     dataset.reader = ReaderWithoutCameras.from_reader(reader, cameras)
