@@ -149,12 +149,14 @@ def measure(
     keys: list[str],
     act: str = DEFAULT_ACT,
     act_steps: int | None = None,
+    pull: float = 0.0,
 ) -> tuple[list[dict], dict]:
     episodes, idm_steps, default_act_steps = ENVS[env]
     act_steps = act_steps or default_act_steps
     truth, labelled = work / f"{env}-true", work / f"{env}-labelled"
     variant = f"k{k}" + "".join(f"-{key.split('.')[-1]}" for key in keys)  # e.g. k1-front: the camera alone
-    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-{variant}"
+    labels_variant = variant + (f"-pull{pull:g}" if pull else "")  # the IDM's labels moved toward the observation
+    stripped, relabelled = work / f"{env}-stripped", work / f"{env}-idm-{labels_variant}"
     env_flags = env_cli_flags(ENV_SETTINGS[env])
     if not truth.exists():
         run(
@@ -176,8 +178,9 @@ def measure(
     shutil.copytree(stripped, relabelled)
     start = time.perf_counter()
     run("lerobot-iupe-relabel", f"--policy.path={idm}", f"--dataset.repo_id=local/{relabelled.name}",
-        f"--dataset.root={relabelled}")  # fmt: skip
-    quality = {"env": env, "idm_context": k, "idm_reads": read, "labelled_episodes": n_labelled, "episodes": episodes,
+        f"--dataset.root={relabelled}", f"--pull_to_observation={pull}")  # fmt: skip
+    quality = {"env": env, "idm_context": k, "idm_reads": read, "pull_to_observation": pull,
+               "labelled_episodes": n_labelled, "episodes": episodes,
                "idm_steps": idm_steps, "relabel_s": time.perf_counter() - start,
                **label_quality(env, truth, relabelled, held_out_from=n_labelled)}  # fmt: skip
     print(json.dumps(quality), flush=True)
@@ -190,7 +193,7 @@ def measure(
     def train_arm(run) -> tuple[Path, float]:
         labels, dataset, seed = run
         start = time.perf_counter()
-        name = f"{env}-act-true-s{seed}" if labels == "true" else f"{env}-act-idm-k{k}-s{seed}"
+        name = f"{env}-act-true-s{seed}" if labels == "true" else f"{env}-act-idm-{labels_variant}-s{seed}"
         if (act, act_steps) != (DEFAULT_ACT, default_act_steps):
             name += f"-{act}-{act_steps}"
         checkpoint = train(dataset, work / name, act_steps, seed, ACT_FLAGS + ACT_SETTINGS[act])
@@ -206,6 +209,7 @@ def measure(
         rows.append(
             {
                 "env": env, "policy": "act", "labels": labels, "idm_context": k if labels == "idm" else None,
+                "pull_to_observation": pull if labels == "idm" and pull else None,
                 "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
                 "episodes": episodes_eval, "act": act, "act_steps": act_steps, "train_s": train_s,
@@ -234,6 +238,9 @@ def main() -> None:
         "--act", default=DEFAULT_ACT, choices=list(ACT_SETTINGS), help="how ACT plays its chunks (see ACT_SETTINGS)"
     )
     parser.add_argument("--act_steps", type=int, default=None, help="ACT's training steps (default: per env)")
+    parser.add_argument(
+        "--pull_to_observation", type=float, default=0.0, help="lerobot-iupe-relabel's --pull_to_observation"
+    )
     parser.add_argument("--work", default="outputs/measure-downstream")
     parser.add_argument("--out", default="benchmarks")
     args = parser.parse_args()
@@ -243,12 +250,13 @@ def main() -> None:
     for env in args.envs:
         rows, quality = measure(
             env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms, args.idm_keys,
-            args.act, args.act_steps,
+            args.act, args.act_steps, args.pull_to_observation,
         )  # fmt: skip
         if rows:
-            key = ("env", "labels", "idm_context", "seed", "act", "act_steps")
+            key = ("env", "labels", "idm_context", "pull_to_observation", "seed", "act", "act_steps")
             update(Path(args.out), "downstream", rows, command, key=key)
-        update(Path(args.out), "downstream_labels", [quality], command, key=("env", "idm_context", "idm_reads"))
+        label_key = ("env", "idm_context", "idm_reads", "pull_to_observation")
+        update(Path(args.out), "downstream_labels", [quality], command, key=label_key)
     print(render(Path(args.out)))
 
 

@@ -70,7 +70,10 @@ def _commands(data: dict, section: str) -> str:
 def _labels(row: dict) -> str:
     if row["labels"] == "true":
         return "true"
-    return "idm" if row.get("idm_context") is None else f"idm (k={row['idm_context']})"
+    if row.get("idm_context") is None:
+        return "idm"
+    pulled = f", pulled {row['pull_to_observation']:g}σ" if row.get("pull_to_observation") else ""
+    return f"idm (k={row['idm_context']}{pulled})"
 
 
 def _f(x: float | None, digits: int = 3) -> str:
@@ -207,7 +210,9 @@ def render(out: Path) -> str:
         for q in data["downstream_labels"]:
             per_dim = ", ".join(_f(x) for x in q["r2_per_dim"])
             lines.append(
-                f"| {q['env']} | {q.get('idm_context', 0)} | {q.get('idm_reads') or '–'} "
+                f"| {q['env']} | {q.get('idm_context', 0)}"
+                f"{f', pulled {pull:g}σ' if (pull := q.get('pull_to_observation')) else ''} "
+                f"| {q.get('idm_reads') or '–'} "
                 f"| {q['labelled_episodes']} of {q['episodes']} | {q['frames']}"
                 f"{'' if q.get('scored_episodes') else ' (all episodes: before held-out scoring)'} | {_f(q['r2'])} | "
                 f"{per_dim} | {_f(q.get('effect_r2'))} | "

@@ -147,6 +147,29 @@ def test_a_full_iupe_checkpoint_relabels_state_only_lunarlander_data_with_named_
     np.testing.assert_allclose(relabelled.meta.stats[ACTION]["mean"], labels.mean(axis=0), rtol=1e-5, atol=1e-6)
 
 
+def test_relabel_pulls_lunarlander_labels_toward_the_observation_and_records_it(lunar_run, lunar_data, tmp_path):
+    """``--pull_to_observation=1``: the written labels differ from the IDM's own, stay in the action's bounds, each
+    episode's last frame repeats the one before it, and meta/iupe.json records the pull."""
+
+    def written(name: str, *extra: str) -> tuple[np.ndarray, LeRobotDataset]:
+        root = tmp_path / name
+        shutil.copytree(lunar_data["expert"], root)
+        run_cli(
+            "lerobot-iupe-relabel", f"--policy.path={lunar_run / CHECKPOINT}", f"--dataset.repo_id=local/{name}",
+            f"--dataset.root={root}", *extra,
+        )  # fmt: skip
+        dataset = LeRobotDataset(f"local/{name}", root=root)
+        return np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]), dataset
+
+    own, _ = written("own")
+    moved, dataset = written("pulled", "--pull_to_observation=1")
+    assert not np.allclose(own, moved) and (moved >= -1).all() and (moved <= 1).all()
+    last = np.asarray(dataset.meta.episodes["dataset_to_index"]) - 1
+    np.testing.assert_array_equal(moved[last], moved[last - 1])
+    recorded = json.loads((dataset.root / "meta" / "iupe.json").read_text())["relabelled_by"]
+    assert recorded["pull_to_observation"] == 1.0
+
+
 def test_ilpo_remaps_continuous_actions_by_regression(lunar_data, tmp_path):
     """ILPO on a Box action (not in the paper): |Z| = 2 per dimension, the ARN's Gaussian head regresses the
     executed action; its online score is then a squared error, and the policy acts inside the bounds."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import io
+import json
 import os
 import re
 import runpy
@@ -139,11 +140,13 @@ def test_workflows_1_and_3_run_as_printed(tmp_path):
         assert "v3.0" in hub.repos["me/cartpole-expert"].tags
 
 
-def test_workflow_2_runs_as_printed_up_to_the_downstream_training(tmp_path):
-    """Write the recordings, train the IDM, relabel in place; the ACT command's flags are checked above (its
-    training at 640×480 is a benchmark's budget, not a test's)."""
+def test_workflow_2_runs_as_printed(tmp_path):
+    """Write the recordings, train the IDM, relabel in place, and train LeRobot's ACT with action chunks on the
+    result, offline (its ImageNet backbone is not downloaded)."""
     block = readme_workflow("2. Relabel a state-only (video) dataset, then train LeRobot's own policy")
-    steps = block.split("lerobot-train --policy.type=act", 1)[0]
-    run_block(steps, tmp_path)
+    assert "--policy.n_action_steps=1 " not in block, "README's ACT must play action chunks, as users run it"
+    run_block(block, tmp_path, {"HF_HUB_OFFLINE": "1"})
     info = (tmp_path / "data/arm-unlabelled/meta/info.json").read_text()
     assert '"action"' in info
+    config = json.loads((tmp_path / "outputs/arm-act/checkpoints/last/pretrained_model/config.json").read_text())
+    assert config["type"] == "act" and config["n_action_steps"] > 1

@@ -125,6 +125,8 @@ def test_overwrite_replaces_existing_actions(cartpole_run, data_dir, tmp_path):
         ("bad_mode", "--mode=greedy"),
         ("bad_threads", "--num_threads must be at least 1"),
         ("bad_workers", "--num_workers must be 0 (no worker processes) or more, got -1"),
+        ("bad_pull", "--pull_to_observation must be 0 (the IDM's own labels) or more, got -1"),
+        ("pull_discrete", "--pull_to_observation applies to continuous actions"),
     ],
 )
 def test_mismatches_are_clear_errors_and_write_nothing(case, message, cartpole_run, maze_expert, data_dir, tmp_path):
@@ -147,6 +149,10 @@ def test_mismatches_are_clear_errors_and_write_nothing(case, message, cartpole_r
         extra = ["--num_threads=0"]
     elif case == "bad_workers":
         extra = ["--num_workers=-1"]
+    elif case == "bad_pull":
+        extra = ["--pull_to_observation=-1"]
+    elif case == "pull_discrete":
+        extra = ["--pull_to_observation=1"]
     before = tree_digest(dataset)
     result = run_in_process("lerobot-iupe-relabel", *relabel_args(checkpoint, dataset, *extra))
     assert result.returncode == 2 and one_error_line(result).count(message) == 1, result.stderr[-2000:]

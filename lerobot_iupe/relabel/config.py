@@ -52,6 +52,11 @@ class RelabelConfig:
     # episodes: labels are the same whatever the number. Default: one per core this process may use (shared among
     # torchrun's processes); 0: all in this process.
     num_workers: int | None = None
+    # Continuous actions: move each label toward a regression of the labels on the frame's vector observations
+    # (observation.state, observation.environment_state), fitted on the whole dataset, by at most this many of the
+    # IDM's standard deviations; 0 keeps the IDM's own labels. It takes out errors that drift with the state, which
+    # chunked policies (ACT, Diffusion) learn as if they were the expert's (benchmarks/relabel.md).
+    pull_to_observation: float = 0.0
     # Replace an `action` feature the dataset already has.
     overwrite: bool = False
     # Label and report statistics, write nothing.
@@ -66,6 +71,10 @@ class RelabelConfig:
             raise ValueError(f"--num_threads must be at least 1, got {self.num_threads}")
         if self.num_workers is not None and self.num_workers < 0:
             raise ValueError(f"--num_workers must be 0 (no worker processes) or more, got {self.num_workers}")
+        if self.pull_to_observation < 0:
+            raise ValueError(
+                f"--pull_to_observation must be 0 (the IDM's own labels) or more, got {self.pull_to_observation}"
+            )
         if self.batch_size < 1:
             raise ValueError(f"--batch_size must be at least 1, got {self.batch_size}")
         if self.dataset.video_backend not in (None, "pyav", "torchcodec"):

@@ -149,7 +149,8 @@ def label_spans_with_idm(
     progress: bool = True,
     workers: int = 0,
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Labels (int64 ids, or float32 vectors) and confidences of the frames of ``spans``, by episode; each
+    """Labels (int64 ids, or float32 vectors) and confidences (the IDM's probability of its label, or its std per
+    dimension in units of the action range) of the frames of ``spans``, by episode; each
     episode's last frame follows ``LAST_FRAME_RULE``. Decoded (and on the CPU labelled) by ``workers`` processes
     (``outputs_in_workers``), or in this one (0); the labels are the same either way: an episode's spans are
     labelled in order, with the episode's own draws."""
@@ -170,7 +171,7 @@ def label_spans_with_idm(
             chosen = head.choose(output, mode == "sample", generator)
             if config.is_continuous:
                 _, std = head.mean_and_std(output)
-                confidence = 0.5 * std.mean(-1)  # std in units of the action range (scaled space spans 2)
+                confidence = 0.5 * std  # per dimension, in units of the action range (scaled space spans 2)
             else:
                 confidence = head.likelihood(output, chosen)
             labels, confidences = results.setdefault(span.episode, ([], []))
@@ -190,7 +191,7 @@ def assemble_labels(
         labels = np.zeros((total - base, config.action_dim), dtype=np.float32)
     else:
         labels = np.zeros(total - base, dtype=np.int64)
-    confidence = np.zeros(total - base, dtype=np.float32)
+    confidence = np.zeros((total - base, *labels.shape[1:]), dtype=np.float32)
     for episode, (first, end) in enumerate(bounds):
         if episode in per_episode:
             episode_labels, episode_confidence = per_episode[episode]

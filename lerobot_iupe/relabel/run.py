@@ -33,6 +33,7 @@ from lerobot_iupe.relabel.checks import (
     load_idm,
 )
 from lerobot_iupe.relabel.config import RelabelConfig, RelabelReport
+from lerobot_iupe.relabel.consistency import pull_toward_observation
 from lerobot_iupe.relabel.labelling import (
     assemble_labels,
     available_cores,
@@ -77,6 +78,8 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     meta = dataset.meta
     keys = check_labelable(policy, meta, cfg.overwrite, cfg.dry_run)
     config = policy.config
+    if cfg.pull_to_observation > 0:
+        check_pullable(policy, meta)
 
     start = time.perf_counter()
     bounds = episode_bounds(meta)
@@ -95,6 +98,8 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
         )  # fmt: skip
     labels, confidence = assemble_labels(per_episode, bounds, config)
     total = len(labels)
+    if cfg.pull_to_observation > 0:
+        labels = pulled_labels(policy, dataset, labels, confidence, bounds, cfg)
 
     agreement, per_dimension, references = None, None, None
     inner = ~last_frame_mask(meta, total)
@@ -144,6 +149,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
                 "mode": cfg.mode,
                 "seed": cfg.seed,
                 "idm_context": config.idm_context,
+                "pull_to_observation": cfg.pull_to_observation,
                 "mean_confidence": report.mean_confidence,
                 "agreement_with_previous_actions": agreement,
             },
@@ -151,3 +157,44 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
         write_iupe_meta(staged, iupe_meta)
     report.written = True
     return report
+
+
+def vector_observation_keys(meta) -> list[str]:
+    """The dataset's per-frame vector observations (``observation.state``, ``observation.environment_state``, …)."""
+    return [
+        key for key, feature in meta.features.items()
+        if key.startswith("observation.") and feature["dtype"] in ("float32", "float64") and len(feature["shape"]) == 1
+    ]  # fmt: skip
+
+
+def check_pullable(policy, meta) -> None:
+    """``--pull_to_observation`` needs continuous actions and a vector observation to regress them on."""
+    if not policy.config.is_continuous:
+        raise ValueError(
+            "--pull_to_observation applies to continuous actions; this IDM labels discrete ones, so leave it at 0"
+        )
+    if not vector_observation_keys(meta):
+        raise ValueError(
+            "--pull_to_observation needs a vector observation (observation.state or observation.environment_state) "
+            f"in {meta.root}; this dataset has none, so leave it at 0"
+        )
+
+
+def pulled_labels(policy, dataset: LeRobotDataset, labels, spread, bounds, cfg: RelabelConfig) -> np.ndarray:
+    """``--pull_to_observation``: the labels of the frames with a successor moved toward a regression on their
+    vector observations (``relabel.consistency``); each episode's last frame then repeats the one before it."""
+    keys = vector_observation_keys(dataset.meta)
+    observations = np.concatenate(
+        [column_array(dataset.hf_dataset, key).astype(np.float32).reshape(len(labels), -1) for key in keys], axis=1
+    )
+    inner = ~last_frame_mask(dataset.meta, len(labels))
+    head = policy.idm_head
+    pulled = labels.copy()
+    pulled[inner] = pull_toward_observation(
+        labels[inner], spread[inner], observations[inner], head.low.cpu().numpy(), head.high.cpu().numpy(),
+        cfg.pull_to_observation, cfg.seed, fixed_dims=head.binary.cpu().numpy(),
+    )  # fmt: skip
+    for first, end in bounds:
+        if end - first > 1:
+            pulled[end - 1] = pulled[end - 2]
+    return pulled
