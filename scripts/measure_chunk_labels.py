@@ -143,7 +143,10 @@ def main() -> None:
             continue
         error = (actions - true)[inner]
         lag1 = [float(np.corrcoef(error[:-1, i], error[1:, i])[0, 1]) for i in range(true.shape[1])]
+        steps_true, steps = np.diff(true, axis=0)[inner[:-1]], np.diff(actions, axis=0)[inner[:-1]]
+        step_error = np.sqrt(((steps - steps_true) ** 2).mean(0)) / np.sqrt((steps_true**2).mean(0))
         row = {"labels": name, "r2_held_out": r2_per_dim(actions[held_out & inner], true[held_out & inner]),
+               "step_change_error": step_error.tolist(),
                "error_lag1_autocorrelation": lag1, "episodes": args.episodes, "seeds": args.seeds}  # fmt: skip
         for play, setting in ((CHUNK, "chunk10"), (1, "replan")):
             row[setting] = [
@@ -168,16 +171,19 @@ def write(out: Path, rows: list[dict], command: str) -> None:
         f"`{command}` (scripts/measure_chunk_labels.py says what each candidate is). The simplest chunked learner, "
         "a 2×256 MLP from LunarLander's observation to its next 10 actions (L1, 3,000 steps of 64), trained on the "
         "same 50 expert episodes with different actions; success = safe landings on 30 episodes from seed 500000, "
-        "per training seed. R² on the 40 episodes the IDM did not train on. Ratios against the true actions.",
+        "per training seed. R² on the 40 episodes the IDM did not train on. Step-to-step change error: "
+        "rms(Δlabel − Δtrue) / rms(Δtrue) per dimension, Δ between consecutive frames. Ratios against the true "
+        "actions.",
         "",
-        "| labels | R² (main, lateral) | error lag-1 autocorrelation | chunk10 per seed | chunk10 mean | ratio "
-        "| replan per seed | replan mean | ratio |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| labels | R² (main, lateral) | step-to-step change error | error lag-1 autocorrelation | chunk10 per seed "
+        "| chunk10 mean | ratio | replan per seed | replan mean | ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         lag1 = row["error_lag1_autocorrelation"]
         row["error_lag1_autocorrelation"] = [0.0 if np.isnan(x) else x for x in lag1]  # true actions: no error
         cells = [row["labels"], ", ".join(f"{x:.3f}" for x in row["r2_held_out"]),
+                 ", ".join(f"{x:.2f}" for x in row["step_change_error"]),
                  ", ".join(f"{x:.2f}" for x in row["error_lag1_autocorrelation"])]  # fmt: skip
         for setting in ("chunk10", "replan"):
             mean = float(np.mean(row[setting]))

@@ -99,7 +99,9 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     labels, confidence = assemble_labels(per_episode, bounds, config)
     total = len(labels)
     if cfg.pull_to_observation > 0:
+        pull_start = time.perf_counter()
         labels = pulled_labels(policy, dataset, labels, confidence, bounds, cfg)
+        seconds += time.perf_counter() - pull_start
 
     agreement, per_dimension, references = None, None, None
     inner = ~last_frame_mask(meta, total)
@@ -139,7 +141,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
 
     with staged_directory(root, overwrite=True) as staged:
         copy_dataset(root, staged)
-        write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode, config))
+        write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode, config, cfg.pull_to_observation))
         iupe_meta = read_iupe_meta(staged)
         iupe_meta.update(
             has_actions=True,

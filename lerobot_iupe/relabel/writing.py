@@ -44,7 +44,7 @@ def _rewrite(path: Path, write) -> None:
     os.replace(fresh, path)
 
 
-def action_feature(checkpoint: str, mode: str, config) -> dict:
+def action_feature(checkpoint: str, mode: str, config, pull_to_observation: float = 0.0) -> dict:
     continuous = config.is_continuous
     return {
         "dtype": "float32" if continuous else "int64",
@@ -56,6 +56,7 @@ def action_feature(checkpoint: str, mode: str, config) -> dict:
             "mode": mode,
             "idm_context": config.idm_context,
             "last_frame": LAST_FRAME_RULE,
+            "pull_to_observation": pull_to_observation,
         },
     }
 
