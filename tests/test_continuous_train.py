@@ -148,8 +148,9 @@ def test_a_full_iupe_checkpoint_relabels_state_only_lunarlander_data_with_named_
 
 
 def test_relabel_pulls_lunarlander_labels_toward_the_observation_and_records_it(lunar_run, lunar_data, tmp_path):
-    """``--pull_to_observation=1``: the written labels differ from the IDM's own, stay in the action's bounds, each
-    episode's last frame repeats the one before it, and meta/iupe.json records the pull."""
+    """By default an IDM of cameras and state pulls continuous labels toward the observation by 1 std: they differ
+    from the IDM's own (``--pull_to_observation=0``), stay in the action's bounds, each episode's last frame repeats
+    the one before it, and meta/iupe.json records the pull."""
 
     def written(name: str, *extra: str) -> tuple[np.ndarray, LeRobotDataset]:
         root = tmp_path / name
@@ -161,8 +162,8 @@ def test_relabel_pulls_lunarlander_labels_toward_the_observation_and_records_it(
         dataset = LeRobotDataset(f"local/{name}", root=root)
         return np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]), dataset
 
-    own, _ = written("own")
-    moved, dataset = written("pulled", "--pull_to_observation=1")
+    own, _ = written("own", "--pull_to_observation=0")
+    moved, dataset = written("pulled")
     assert not np.allclose(own, moved) and (moved >= -1).all() and (moved <= 1).all()
     last = np.asarray(dataset.meta.episodes["dataset_to_index"]) - 1
     np.testing.assert_array_equal(moved[last], moved[last - 1])

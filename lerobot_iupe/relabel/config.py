@@ -55,8 +55,10 @@ class RelabelConfig:
     # Continuous actions: move each label toward a regression of the labels on the frame's vector observations
     # (observation.state, observation.environment_state), fitted on the whole dataset, by at most this many of the
     # IDM's standard deviations; 0 keeps the IDM's own labels. It takes out errors that drift with the state, which
-    # chunked policies (ACT, Diffusion) learn as if they were the expert's (benchmarks/relabel.md).
-    pull_to_observation: float = 0.0
+    # chunked policies (ACT, Diffusion) learn as if they were the expert's (benchmarks/relabel.md). Default: 1 for
+    # an IDM of cameras and state on a dataset with a vector observation; 0 for the arm IDM (its labels follow the
+    # joints, and the pull lowered their R²), for discrete actions and for datasets without a vector observation.
+    pull_to_observation: float | None = None
     # Replace an `action` feature the dataset already has.
     overwrite: bool = False
     # Label and report statistics, write nothing.
@@ -71,7 +73,7 @@ class RelabelConfig:
             raise ValueError(f"--num_threads must be at least 1, got {self.num_threads}")
         if self.num_workers is not None and self.num_workers < 0:
             raise ValueError(f"--num_workers must be 0 (no worker processes) or more, got {self.num_workers}")
-        if self.pull_to_observation < 0:
+        if self.pull_to_observation is not None and self.pull_to_observation < 0:
             raise ValueError(
                 f"--pull_to_observation must be 0 (the IDM's own labels) or more, got {self.pull_to_observation}"
             )
@@ -112,6 +114,8 @@ class RelabelReport:
     # Under torchrun only process 0 gathers, writes and reports; the others return a report with this False.
     first_process: bool = True
     continuous: bool = False
+    # --pull_to_observation as applied (its default resolved): the labels' largest move, in the IDM's stds.
+    pull_to_observation: float = 0.0
 
     @property
     def frames_per_second(self) -> float:
@@ -122,6 +126,8 @@ class RelabelReport:
             means = zip(self.action_names, self.action_summary, strict=True)
             labels = "mean label " + ", ".join(f"{n}={v:.3f}" for n, v in means)
             labels += f"; mean IDM std {self.mean_confidence:.3f} of the action range"
+            if self.pull_to_observation:
+                labels += f"; pulled toward the observation by up to {self.pull_to_observation:g} std"
             agreement = "R² against"
         else:
             total = max(sum(self.action_summary), 1)

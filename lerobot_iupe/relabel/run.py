@@ -78,8 +78,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     meta = dataset.meta
     keys = check_labelable(policy, meta, cfg.overwrite, cfg.dry_run)
     config = policy.config
-    if cfg.pull_to_observation > 0:
-        check_pullable(policy, meta)
+    pull = pull_strength(cfg.pull_to_observation, policy, meta)
 
     start = time.perf_counter()
     bounds = episode_bounds(meta)
@@ -98,9 +97,9 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
         )  # fmt: skip
     labels, confidence = assemble_labels(per_episode, bounds, config)
     total = len(labels)
-    if cfg.pull_to_observation > 0:
+    if pull > 0:
         pull_start = time.perf_counter()
-        labels = pulled_labels(policy, dataset, labels, confidence, bounds, cfg)
+        labels = pulled_labels(policy, dataset, labels, confidence, bounds, pull, cfg.seed)
         seconds += time.perf_counter() - pull_start
 
     agreement, per_dimension, references = None, None, None
@@ -135,13 +134,14 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
         references=references,
         processes=world,
         continuous=config.is_continuous,
+        pull_to_observation=pull,
     )
     if cfg.dry_run:
         return report
 
     with staged_directory(root, overwrite=True) as staged:
         copy_dataset(root, staged)
-        write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode, config, cfg.pull_to_observation))
+        write_labels(staged, labels, action_feature(str(cfg.policy.path), cfg.mode, config, pull))
         iupe_meta = read_iupe_meta(staged)
         iupe_meta.update(
             has_actions=True,
@@ -151,7 +151,7 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
                 "mode": cfg.mode,
                 "seed": cfg.seed,
                 "idm_context": config.idm_context,
-                "pull_to_observation": cfg.pull_to_observation,
+                "pull_to_observation": pull,
                 "mean_confidence": report.mean_confidence,
                 "agreement_with_previous_actions": agreement,
             },
@@ -169,8 +169,14 @@ def vector_observation_keys(meta) -> list[str]:
     ]  # fmt: skip
 
 
-def check_pullable(policy, meta) -> None:
-    """``--pull_to_observation`` needs continuous actions and a vector observation to regress them on."""
+def pull_strength(requested: float | None, policy, meta) -> float:
+    """``--pull_to_observation`` as given, or its default (``RelabelConfig``): 1 for an IDM of cameras and state
+    with continuous actions on a dataset with a vector observation, else 0. A pull that cannot apply is refused."""
+    if requested is None:
+        applies = policy.config.is_continuous and not policy.config.joint_idm and vector_observation_keys(meta)
+        return 1.0 if applies else 0.0
+    if requested == 0:
+        return 0.0
     if not policy.config.is_continuous:
         raise ValueError(
             "--pull_to_observation applies to continuous actions; this IDM labels discrete ones, so leave it at 0"
@@ -180,9 +186,10 @@ def check_pullable(policy, meta) -> None:
             "--pull_to_observation needs a vector observation (observation.state or observation.environment_state) "
             f"in {meta.root}; this dataset has none, so leave it at 0"
         )
+    return requested
 
 
-def pulled_labels(policy, dataset: LeRobotDataset, labels, spread, bounds, cfg: RelabelConfig) -> np.ndarray:
+def pulled_labels(policy, dataset: LeRobotDataset, labels, spread, bounds, strength: float, seed: int) -> np.ndarray:
     """``--pull_to_observation``: the labels of the frames with a successor moved toward a regression on their
     vector observations (``relabel.consistency``); each episode's last frame then repeats the one before it."""
     keys = vector_observation_keys(dataset.meta)
@@ -194,7 +201,7 @@ def pulled_labels(policy, dataset: LeRobotDataset, labels, spread, bounds, cfg: 
     pulled = labels.copy()
     pulled[inner] = pull_toward_observation(
         labels[inner], spread[inner], observations[inner], head.low.cpu().numpy(), head.high.cpu().numpy(),
-        cfg.pull_to_observation, cfg.seed, fixed_dims=head.binary.cpu().numpy(),
+        strength, seed, fixed_dims=head.binary.cpu().numpy(),
     )  # fmt: skip
     for first, end in bounds:
         if end - first > 1:
