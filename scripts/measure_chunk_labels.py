@@ -59,18 +59,19 @@ def drifting_noise(episode: np.ndarray, scale: np.ndarray, rho: float, rng: np.r
     return noise
 
 
-def chunk_targets(actions: np.ndarray, episode: np.ndarray) -> np.ndarray:
-    """The next CHUNK actions of each frame, the episode's last one repeated past its end (LeRobot pads likewise)."""
-    index = np.arange(len(actions))[:, None] + np.arange(CHUNK)[None]
+def chunk_targets(actions: np.ndarray, episode: np.ndarray, chunk: int = CHUNK) -> np.ndarray:
+    """The next ``chunk`` actions of each frame, the episode's last one repeated past its end (LeRobot pads
+    likewise)."""
+    index = np.arange(len(actions))[:, None] + np.arange(chunk)[None]
     last = np.array([np.flatnonzero(episode == e)[-1] for e in episode])
     return actions[np.minimum(index, last[:, None])].reshape(len(actions), -1)
 
 
-def train_chunked(observations: np.ndarray, actions: np.ndarray, episode: np.ndarray, seed: int):
+def train_chunked(observations: np.ndarray, actions: np.ndarray, episode: np.ndarray, seed: int, chunk: int = CHUNK):
     torch.manual_seed(seed)
     mean, std = observations.mean(0), observations.std(0) + 1e-6
     x = torch.as_tensor((observations - mean) / std)
-    y = torch.as_tensor(chunk_targets(actions, episode), dtype=torch.float32)
+    y = torch.as_tensor(chunk_targets(actions, episode, chunk), dtype=torch.float32)
     net = torch.nn.Sequential(torch.nn.Linear(x.shape[1], 256), torch.nn.ReLU(), torch.nn.Linear(256, 256),
                               torch.nn.ReLU(), torch.nn.Linear(256, y.shape[1]))  # fmt: skip
     optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
@@ -84,7 +85,7 @@ def train_chunked(observations: np.ndarray, actions: np.ndarray, episode: np.nda
 
     def act(observation: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return net(torch.as_tensor((observation - mean) / std)[None]).numpy().reshape(CHUNK, -1)
+            return net(torch.as_tensor((observation - mean) / std)[None]).numpy().reshape(chunk, -1)
 
     return act
 
@@ -115,6 +116,11 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--only", nargs="*", default=None, help="candidates to run (default: all)")
+    parser.add_argument(
+        "--settings", nargs="+", default=["chunk10", "replan"], choices=["chunk10", "replan", "step"],
+        help="how the learner plays: chunk10 (10 actions open loop), replan (a chunk every step, its first action), "
+        "step (one-action chunks: a per-step policy)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("benchmarks"))
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -148,36 +154,47 @@ def main() -> None:
         row = {"labels": name, "r2_held_out": r2_per_dim(actions[held_out & inner], true[held_out & inner]),
                "step_change_error": step_error.tolist(),
                "error_lag1_autocorrelation": lag1, "episodes": args.episodes, "seeds": args.seeds}  # fmt: skip
-        for play, setting in ((CHUNK, "chunk10"), (1, "replan")):
+        for setting in args.settings:
+            chunk, play = {"chunk10": (CHUNK, CHUNK), "replan": (CHUNK, 1), "step": (1, 1)}[setting]
             row[setting] = [
-                success_rate(train_chunked(observations, actions, episode, seed), play, args.episodes)
+                success_rate(train_chunked(observations, actions, episode, seed, chunk), play, args.episodes)
                 for seed in args.seeds
             ]
-        rows.append(row)
+        old = next((r for r in previous(args.out) if r["labels"] == name), {})
+        rows.append({**old, **row})
         print(json.dumps(row), flush=True)
     write(args.out, rows, " ".join(["python", "scripts/measure_chunk_labels.py", *sys.argv[1:]]))
 
 
+def previous(out: Path) -> list[dict]:
+    path = out / "chunk_labels.json"
+    return json.loads(path.read_text())["rows"] if path.exists() else []
+
+
 def write(out: Path, rows: list[dict], command: str) -> None:
     path = out / "chunk_labels.json"
-    old = json.loads(path.read_text())["rows"] if path.exists() else []
-    names = {row["labels"] for row in rows}
-    rows = [row for row in old if row["labels"] not in names] + rows
-    path.write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
+    data = json.loads(path.read_text()) if path.exists() else {"commands": []}
+    commands = data.get("commands") or [data["command"]]
+    commands += [command] if command not in commands else []
+    old = data.get("rows", [])
+    new = {row["labels"]: row for row in rows}  # in place of the rows they replace, in their order
+    rows = [new.pop(row["labels"], row) for row in old] + list(new.values())
+    path.write_text(json.dumps({"commands": commands, "rows": rows}, indent=1) + "\n")
     true = next((row for row in rows if row["labels"] == "true actions"), None)
     lines = [
         "# Label candidates for chunked policies: a quick screen",
         "",
-        f"`{command}` (scripts/measure_chunk_labels.py says what each candidate is). The simplest chunked learner, "
-        "a 2×256 MLP from LunarLander's observation to its next 10 actions (L1, 3,000 steps of 64), trained on the "
-        "same 50 expert episodes with different actions; success = safe landings on 30 episodes from seed 500000, "
-        "per training seed. R² on the 40 episodes the IDM did not train on. Step-to-step change error: "
-        "rms(Δlabel − Δtrue) / rms(Δtrue) per dimension, Δ between consecutive frames. Ratios against the true "
-        "actions.",
+        f"{', '.join(f'`{c}`' for c in commands)} (scripts/measure_chunk_labels.py says what each candidate is). "
+        "The simplest chunked learner, a 2×256 MLP from LunarLander's observation to its next 10 actions (L1, "
+        "3,000 steps of 64), trained on the same 50 expert episodes with different actions; success = safe "
+        "landings on 30 episodes from seed 500000, per training seed. R² on the 40 episodes the IDM did not train "
+        "on. Step-to-step change error: rms(Δlabel − Δtrue) / rms(Δtrue) per dimension, Δ between consecutive "
+        "frames. Ratios against the true actions. `step` is the same learner with one-action chunks (a per-step "
+        "policy).",
         "",
         "| labels | R² (main, lateral) | step-to-step change error | error lag-1 autocorrelation | chunk10 per seed "
-        "| chunk10 mean | ratio | replan per seed | replan mean | ratio |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| chunk10 mean | ratio | replan per seed | replan mean | ratio | step per seed | step mean | ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         lag1 = row["error_lag1_autocorrelation"]
@@ -185,9 +202,12 @@ def write(out: Path, rows: list[dict], command: str) -> None:
         cells = [row["labels"], ", ".join(f"{x:.3f}" for x in row["r2_held_out"]),
                  ", ".join(f"{x:.2f}" for x in row["step_change_error"]),
                  ", ".join(f"{x:.2f}" for x in row["error_lag1_autocorrelation"])]  # fmt: skip
-        for setting in ("chunk10", "replan"):
+        for setting in ("chunk10", "replan", "step"):
+            if setting not in row:
+                cells += ["–", "–", "–"]
+                continue
             mean = float(np.mean(row[setting]))
-            ratio = mean / np.mean(true[setting]) if true else float("nan")
+            ratio = mean / np.mean(true[setting]) if true and setting in true else float("nan")
             cells += [", ".join(f"{x:.2f}" for x in row[setting]), f"{mean:.3f}", f"{ratio:.2f}"]
         lines.append("| " + " | ".join(cells) + " |")
     (out / "chunk_labels.md").write_text("\n".join(lines) + "\n")
