@@ -65,6 +65,10 @@ def label_spans(
     return spans
 
 
+# A forked worker's copies of its parent's open decoders (FrameReader.forget_open_files).
+INHERITED_DECODERS: list = []
+
+
 class FrameReader:
     """Frames ``lo … hi`` of one episode for a set of observation keys, read from the files as needed (memory
     follows the span, not the dataset), cameras at ``layout``'s working resolution (resized by the video decoder),
@@ -82,7 +86,9 @@ class FrameReader:
 
     def forget_open_files(self) -> None:
         """Open new decoders from here on: a forked process must not share its parent's (their state is the
-        parent's)."""
+        parent's). The parent's are kept, never freed: freeing an AV1 decoder waits for its decoding threads, which
+        a forked child does not have (a worker hung there in a test that had decoded before forking)."""
+        INHERITED_DECODERS.append(self.episode_frames.cameras)
         self.episode_frames.cameras = {}
 
     def parts(self, episode: int, lo: int, hi: int) -> list[Tensor]:

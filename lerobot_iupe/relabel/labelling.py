@@ -5,6 +5,7 @@ episode do not depend on which process labels it."""
 from __future__ import annotations
 
 import copy
+import gc
 import multiprocessing as mp
 import os
 import traceback
@@ -90,8 +91,14 @@ def outputs_in_workers(
     label_here = not label_in_workers
     args = (policy, reader, by_episode, tasks, out, None if label_here else device)
     processes = [context.Process(target=_work, args=args, daemon=True) for _ in range(workers)]
-    for process in processes:
-        process.start()
+    # Frozen objects are never collected: a child's garbage collector would otherwise free decoders the parent had
+    # dropped, and freeing an AV1 decoder without its threads hangs.
+    gc.freeze()
+    try:
+        for process in processes:
+            process.start()
+    finally:
+        gc.unfreeze()
     try:
         running = workers
         while running:
