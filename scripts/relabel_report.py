@@ -125,6 +125,8 @@ def _real_cameras(data: dict) -> list[str]:
 def render(out: Path) -> str:
     data = load(out)
     lines = ["# lerobot-iupe-relabel: measured", "", "On a 2-core CPU, no GPU. Every section names its command.", ""]
+    if data.get("arm_idm_markdown"):  # written by measure_arm_idm.py's runs and kept as text
+        lines += [data["arm_idm_markdown"], ""]
     if data.get("real_cameras"):
         lines += _real_cameras(data)
     if data.get("resolution"):
