@@ -29,6 +29,7 @@ from lerobot.datasets import LeRobotDataset
 from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.envs.lunar import LunarLanderEnv
 from lerobot_iupe.relabel.consistency import observation_regression
+from lerobot_iupe.relabel.references import per_dimension_r2
 
 CHUNK, STEPS, EVAL_SEED = 10, 3000, 500_000
 
@@ -106,10 +107,6 @@ def success_rate(policy, play: int, episodes: int) -> float:
     return landed / episodes
 
 
-def r2_per_dim(labels: np.ndarray, true: np.ndarray) -> list[float]:
-    return [float(1 - ((labels[:, i] - true[:, i]) ** 2).mean() / true[:, i].var()) for i in range(true.shape[1])]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--work", type=Path, default=Path("outputs/dl48"))
@@ -151,7 +148,7 @@ def main() -> None:
         lag1 = [float(np.corrcoef(error[:-1, i], error[1:, i])[0, 1]) for i in range(true.shape[1])]
         steps_true, steps = np.diff(true, axis=0)[inner[:-1]], np.diff(actions, axis=0)[inner[:-1]]
         step_error = np.sqrt(((steps - steps_true) ** 2).mean(0)) / np.sqrt((steps_true**2).mean(0))
-        row = {"labels": name, "r2_held_out": r2_per_dim(actions[held_out & inner], true[held_out & inner]),
+        row = {"labels": name, "r2_held_out": per_dimension_r2(actions[held_out & inner], true[held_out & inner]),
                "step_change_error": step_error.tolist(),
                "error_lag1_autocorrelation": lag1, "episodes": args.episodes, "seeds": args.seeds}  # fmt: skip
         for setting in args.settings:
