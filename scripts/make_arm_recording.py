@@ -5,6 +5,10 @@ gravity on shoulder and elbow, jaws stopped by grasped objects, 12-bit encoder r
 camera training on without a robot; the tests, ``measure_cameras.py`` and ``measure_arm_idm.py`` use it.
 
     python scripts/make_arm_recording.py --root data/arm --episodes 40 [--frames 250] [--state_only] [--delay 4]
+    python scripts/make_arm_recording.py --root data/humanoid --no_cameras --body humanoid --idle left_arm
+
+``--body`` records other arms (a leader of another arm, a humanoid's arms and hands, a miscalibrated SO-101;
+docs/relabelling.md); they are written without cameras.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lerobot_iupe.data.arm_recording import ArmDynamics, write_arm_recording
+from lerobot_iupe.data.arm_recording import BODIES, HUMANOID_LEFT_ARM, ArmDynamics, write_arm_recording
 
 
 def main() -> None:
@@ -27,6 +31,15 @@ def main() -> None:
     parser.add_argument("--vcodec", default="libsvtav1", help="video codec (LeRobot's default AV1, or h264)")
     parser.add_argument("--state_only", action="store_true", help="leave the actions out (a state-only recording)")
     parser.add_argument("--no_cameras", action="store_true", help="write the joints alone, no camera")
+    parser.add_argument(
+        "--body", choices=sorted(BODIES), default="so101",
+        help="which arms record: so101; so101_miscalibrated (an offset wrist_roll that barely follows); "
+        "other_leader (an SO-101 leader driving a 7-value follower of other names); humanoid (2 arms, 2 hands)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--idle", nargs="+", default=[], metavar="JOINT",
+        help="leader joints that stay at rest (action names; 'left_arm' = the humanoid's left arm)",
+    )  # fmt: skip
     default = ArmDynamics()
     arm = parser.add_argument_group(
         "how the follower follows the leader (defaults: a real SO-101, docs/relabelling.md)"
@@ -56,10 +69,17 @@ def main() -> None:
         parser.error(f"--delay/--response: {error}")
     if args.root.exists():
         parser.error(f"--root={args.root} already exists; choose a new folder")
+    body = BODIES[args.body]
+    idle = tuple(j for name in args.idle for j in (HUMANOID_LEFT_ARM if name == "left_arm" else (name,)))
+    unknown = sorted(set(idle) - set(body.action_names))
+    if unknown:
+        parser.error(f"--idle: {unknown} are not joints of --body={args.body}: {', '.join(body.action_names)}")
+    if args.body != "so101" and not args.no_cameras:
+        parser.error(f"--body={args.body}: the cameras draw an SO-101; add --no_cameras")
     dataset = write_arm_recording(
         args.root, args.episodes, args.frames, args.height, args.width, seed=args.seed, repo_id=args.repo_id,
         vcodec=args.vcodec, with_actions=not args.state_only, progress=True, dynamics=dynamics,
-        cameras=not args.no_cameras,
+        cameras=not args.no_cameras, body=body, idle=idle,
     )  # fmt: skip
     print(f"wrote {dataset.meta.total_frames} frames in {dataset.meta.total_episodes} episodes to {args.root}")
 

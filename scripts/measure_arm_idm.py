@@ -1,5 +1,7 @@
-"""The arm IDM against the simplest fits, on the generator's follower (``lerobot_iupe.data.arm_recording``): for each
-transport delay and number of labelled episodes, ``lerobot-train --policy.type=iupe --policy.supervised=true`` with
+"""The linear-first IDM against the simplest fits, on the generator's arms (``lerobot_iupe.data.arm_recording``): for
+each body (an SO-101; one whose wrist_roll is offset and barely follows; an SO-101 leader driving another 7-value
+follower; a humanoid's two arms and hands, its left arm idle in the labelled episodes), transport delay and number of
+labelled episodes, ``lerobot-train --policy.type=iupe --policy.supervised=true`` with
 default flags on the labelled episodes, then ``lerobot-iupe-relabel --dry_run=true`` on 10 held-out episodes with
 actions, which reports per joint the IDM's R², the plain ridge regression on the same window and training data, and
 the best copy a_t ≈ s_{t+k}. ``--variant plain`` trains the IDM the paper's envs use (``joint_state_columns=[]``).
@@ -7,7 +9,8 @@ the best copy a_t ≈ s_{t+k}. ``--variant plain`` trains the IDM the paper's en
 The recordings carry no camera (``--no_cameras``): the arm IDM reads observation.state alone, and LeRobot's loader
 would decode every camera frame of every batch for nothing.
 
-    python scripts/measure_arm_idm.py [--delays 2 4 6] [--labelled 2 10] [--steps 3000] [--variant joint|plain]
+    python scripts/measure_arm_idm.py [--bodies so101 …] [--delays 2 4 6] [--labelled 2 10] [--steps 3000]
+        [--variant joint|plain]
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from lerobot_iupe.data.arm_recording import ArmDynamics, write_arm_recording
+from lerobot_iupe.data.arm_recording import BODIES, HUMANOID_LEFT_ARM, ArmDynamics, write_arm_recording
 from lerobot_iupe.relabel.config import CheckpointRef, RelabelConfig, RelabelDataset
 from lerobot_iupe.relabel.run import relabel
 
@@ -27,10 +30,12 @@ FRAMES = 300  # 10 s at 30 fps, as the real recording's episodes (373 frames on 
 HELD_OUT = 10
 
 
-def recording(root: Path, episodes: int, seed: int, delay: int) -> Path:
+def recording(root: Path, episodes: int, seed: int, delay: int, body: str = "so101", labelled: bool = False) -> Path:
+    """The humanoid's labelled episodes keep its left arm idle; its held-out ones move it."""
+    idle = HUMANOID_LEFT_ARM if body == "humanoid" and labelled else ()
     if not (root / "meta" / "info.json").exists():
         write_arm_recording(root, episodes, FRAMES, seed=seed, repo_id=f"local/{root.name}",
-                            dynamics=ArmDynamics(delay=delay), cameras=False)  # fmt: skip
+                            dynamics=ArmDynamics(delay=delay), cameras=False, body=BODIES[body], idle=idle)  # fmt: skip
     return root
 
 
@@ -56,18 +61,20 @@ def train(root: Path, out: Path, steps: int, variant: str) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--work", type=Path, default=Path("outputs/measure-arm-idm"))
+    parser.add_argument("--bodies", nargs="+", choices=sorted(BODIES), default=["so101"])
     parser.add_argument("--delays", type=int, nargs="+", default=[2, 4, 6])
     parser.add_argument("--labelled", type=int, nargs="+", default=[2, 10])
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--variant", choices=["joint", "plain"], default="joint")
     args = parser.parse_args()
     rows = []
-    for delay in args.delays:
-        held_out = recording(args.work / f"held-out-d{delay}", HELD_OUT, 1000, delay)
+    for body, delay in ((b, d) for b in args.bodies for d in args.delays):
+        tag = f"d{delay}" if body == "so101" else f"{body}-d{delay}"  # so101's folders keep their earlier names
+        held_out = recording(args.work / f"held-out-{tag}", HELD_OUT, 1000, delay, body)
         for labelled in args.labelled:
-            train_root = recording(args.work / f"train-d{delay}-n{labelled}", labelled, 0, delay)
+            train_root = recording(args.work / f"train-{tag}-n{labelled}", labelled, 0, delay, body, labelled=True)
             checkpoint = train(
-                train_root, args.work / f"run-d{delay}-n{labelled}-{args.variant}", args.steps, args.variant
+                train_root, args.work / f"run-{tag}-n{labelled}-{args.variant}", args.steps, args.variant
             )
             report = relabel(RelabelConfig(
                 policy=CheckpointRef(path=str(checkpoint)),
@@ -76,21 +83,37 @@ def main() -> None:
             ))  # fmt: skip
             config = json.loads((checkpoint / "config.json").read_text())
             refs = report.references or {}
-            rows.append({"delay": delay, "labelled": labelled, "variant": args.variant, "lag": config["idm_lag"],
+            rows.append({"body": body, "delay": delay, "labelled": labelled, "variant": args.variant,
+                         "lag": config["idm_lag"], "lags": config.get("idm_joint_lags"),
                          "window": config["idm_context"], "joints": report.action_names,
                          "idm": report.agreement_per_dimension, **refs})  # fmt: skip
             print(report.summary(), flush=True)
     (args.work / f"results-{args.variant}.json").write_text(json.dumps(rows, indent=1))
-    print("\n| delay | labelled | lag | joint | IDM | ridge | best copy (k) | IDM − ridge |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("\n| body | delay | labelled | joint | lag | IDM | ridge | best copy (k) | IDM − best simple fit |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         for n, name in enumerate(row["joints"]):
-            ridge = row.get("ridge", [float("nan")] * 6)[n]
-            copy = f"{row['copy'][n]:.4f} ({row['copy_lag'][n]})" if "copy" in row else "–"
+            ridge = row.get("ridge", [float("nan")] * len(row["joints"]))[n]
+            copy, copy_lag = (row["copy"][n], row["copy_lag"][n]) if "copy" in row else (float("nan"), -1)
+            best = max(ridge, copy) if copy_lag >= 0 else ridge
+            copied = f"{copy:.4f} ({copy_lag})" if copy_lag >= 0 else "–"
+            lag = row["lags"][n] if row.get("lags") else row["lag"]
             print(
-                f"| {row['delay']} | {row['labelled']} | {row['lag']} | {name} | {row['idm'][n]:.4f} | {ridge:.4f} "
-                f"| {copy} | {row['idm'][n] - ridge:+.4f} |"
+                f"| {row.get('body', 'so101')} | {row['delay']} | {row['labelled']} | {name} | {lag} "
+                f"| {row['idm'][n]:.4f} | {ridge:.4f} | {copied} | {row['idm'][n] - best:+.4f} |"
             )
+    print("\n| body | delay | labelled | mean IDM | mean ridge | worst joint: IDM − best simple fit |")
+    print("|---|---|---|---|---|---|")
+    for row in rows:
+        gaps = [
+            idm - (max(ridge, copy) if lag >= 0 else ridge)
+            for idm, ridge, copy, lag in zip(row["idm"], row["ridge"], row["copy"], row["copy_lag"], strict=True)
+        ]
+        mean = lambda values: sum(values) / len(values)  # noqa: E731
+        print(
+            f"| {row.get('body', 'so101')} | {row['delay']} | {row['labelled']} | {mean(row['idm']):.4f} "
+            f"| {mean(row['ridge']):.4f} | {min(gaps):+.4f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
-"""The arm IDM (policy/joint_idm.py): its pure parts against their definitions, the generator's follower, and the
-whole path — lerobot-train with default flags on two labelled episodes of a follower with a 4-frame transport delay,
-then lerobot-iupe-relabel --dry_run=true on held-out episodes — against a ridge regression on the same data."""
+"""The linear-first IDM (policy/joint_idm.py): its pure parts against their definitions, the generator's arms, and
+the whole path — lerobot-train with default flags on two labelled episodes (an SO-101 follower with a 4-frame
+transport delay; an SO-101 leader driving another 7-value follower; a humanoid whose left arm is idle in the labelled
+episodes), then lerobot-iupe-relabel --dry_run=true on held-out episodes — against a ridge regression and the copy
+on the same data."""
 
 from __future__ import annotations
 
@@ -12,15 +14,29 @@ import pytest
 import torch
 from conftest import CHECKPOINT, once, run_in_process, train_once
 
-from lerobot_iupe.data.arm_recording import ENCODER_STEP, ArmDynamics, teleoperated_episode, write_arm_recording
+from lerobot_iupe.data.arm_recording import (
+    ENCODER_STEP,
+    HUMANOID,
+    HUMANOID_LEFT_ARM,
+    OTHER_LEADER,
+    SO101_MISCALIBRATED,
+    ArmDynamics,
+    teleoperated_episode,
+    write_arm_recording,
+)
 from lerobot_iupe.policy import IUPEPolicy
 from lerobot_iupe.policy.joint_idm import (
     BLOCKS,
+    action_sources,
     best_copy_lag,
     episode_blocks,
+    fit_linear,
     fit_ridge,
     gate_weights,
     joint_state_columns,
+    max_lag,
+    named_sources,
+    selection_folds,
 )
 
 DELAY = 4
@@ -41,6 +57,80 @@ def test_the_lag_is_where_the_action_best_matches_a_later_state_within_its_episo
     # The last frames of each episode would pair across the boundary; they must not count.
     assert best_copy_lag(walk, actions, episodes, [0, 1]) == 3
     assert best_copy_lag(walk, walk, episodes, [0, 1]) == 0
+
+
+def test_each_action_gets_its_own_lag_and_a_differently_named_one_the_column_it_follows():
+    rng = np.random.default_rng(5)
+    walk = rng.normal(size=(600, 3)).cumsum(axis=0)
+    episodes = np.repeat([0, 1, 2], 200)
+    actions = np.stack([np.roll(walk[:, 0], -2), np.roll(walk[:, 1], -7), -3.0 * np.roll(walk[:, 2], -4) + 9], 1)
+    # Two actions named as states 0 and 1, the third named otherwise: it follows state 2 at lag 4, sign and scale aside.
+    columns, lags = action_sources(walk, actions, episodes, [0, 1, None])
+    assert columns == [0, 1, 2] and lags == [2, 7, 4]
+    # An action that follows no state (an engine's thrust) is not the linear-first model's.
+    assert action_sources(walk, rng.normal(size=(600, 1)), episodes, [None]) is None
+    assert named_sources(["a", "b"], ["b", "c"]) == [None, 0]
+    # Candidate fits are judged on whole held-out episodes where there are two or more, on blocks in one.
+    assert selection_folds(episodes).tolist() == np.repeat([0, 1, 2], 200).tolist()
+    assert len(np.unique(selection_folds(np.zeros(100, dtype=int)))) == BLOCKS
+
+
+def windows_of(states: np.ndarray, offsets: list[int], length: int) -> np.ndarray:
+    """Windows (N, F, D) at ``offsets`` of episodes of ``length`` frames, clamped into each episode."""
+    rows = np.arange(len(states))
+    first = rows // length * length
+    return states[np.clip(rows[:, None] + np.asarray(offsets), first[:, None], first[:, None] + length - 1)]
+
+
+def generated(body, episodes: int, seed: int, idle=()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    parts = [
+        teleoperated_episode(300, np.random.default_rng(seed + i), ArmDynamics(), body, idle) for i in range(episodes)
+    ]
+    states, actions = (np.concatenate([p[n] for p in parts]).astype(np.float64) for n in (0, 1))
+    return states, actions, np.repeat(np.arange(episodes), 300)
+
+
+def r2(predicted: np.ndarray, true: np.ndarray) -> np.ndarray:
+    return 1.0 - ((predicted - true) ** 2).mean(axis=0) / true.var(axis=0)
+
+
+def test_a_joint_idle_in_the_labelled_episodes_follows_its_own_state_on_episodes_where_it_moves():
+    states, actions, episodes = generated(HUMANOID, 2, 0, idle=HUMANOID_LEFT_ARM)
+    moving_states, moving_actions, _ = generated(HUMANOID, 3, 500)
+    idle = [HUMANOID.action_names.index(name) for name in HUMANOID_LEFT_ARM]
+    within = max(actions[episodes == e][:, idle].std(axis=0).max() for e in (0, 1))
+    assert within < 0.05 * moving_actions[:, idle].std(axis=0).min()  # barely moves in the labelled episodes
+    named = list(range(26))
+    columns, lags = action_sources(states, actions, episodes, named, max_lag(30))
+    hands = [j for j, name in enumerate(HUMANOID.action_names) if name.split("_", 1)[1] in ("index", "middle")]
+    assert min(lags[j] for j in hands) > max(lags[j] for j in range(14))  # the fingers answer later than the arms
+    offsets = list(range(-1, max_lag(30) + 1))
+    weight, bias, report = fit_linear(
+        windows_of(states, offsets, 300), actions, episodes, [offsets.index(k) for k in lags], columns, [True] * 26
+    )
+    predicted = windows_of(moving_states, offsets, 300).reshape(len(moving_states), -1) @ weight + bias
+    rows = np.arange(len(moving_states))
+    for j in idle:
+        copied = moving_states[np.minimum(rows + lags[j], rows // 300 * 300 + 299), j]
+        assert r2(predicted[:, j], moving_actions[:, j]) >= r2(copied, moving_actions[:, j]) - 0.002, (
+            HUMANOID.action_names[j],
+            report["fit"][j],
+        )
+
+
+def test_a_leader_of_another_arm_takes_the_fit_over_every_column_where_its_map_mixes_them():
+    states, actions, episodes = generated(OTHER_LEADER, 3, 0)
+    named = named_sources(list(OTHER_LEADER.action_names), list(OTHER_LEADER.state_names))
+    assert named == [None] * 5 + [6]  # only the grippers share a name
+    columns, lags = action_sources(states, actions, episodes, named, max_lag(30))
+    assert columns == [0, 1, 2, 4, 5, 6]  # joint_4, held near 0, is no action's source
+    offsets = list(range(-1, max_lag(30) + 1))
+    _, _, report = fit_linear(
+        windows_of(states, offsets, 300), actions, episodes, [offsets.index(k) for k in lags], columns,
+        [n is not None for n in named],
+    )  # fmt: skip
+    assert report["fit"][1] == "all"  # shoulder_lift drives joint_2 together with elbow_flex
+    assert report["fit"][0] == "own"  # shoulder_pan is joint_1, sign aside
 
 
 def test_ridge_recovers_a_linear_map_and_chooses_each_targets_strength_by_held_out_episodes():
@@ -78,6 +168,20 @@ def test_the_generated_follower_lags_by_its_delay_stops_on_objects_and_reads_in_
     assert (states[DELAY + 2 :, 5] - actions[: -DELAY - 2, 5] > 8.0).mean() > 0.05
 
 
+def test_the_generated_bodies_differ_from_the_so101_as_real_recordings_do():
+    rng = np.random.default_rng(6)
+    states, actions = teleoperated_episode(600, rng, body=OTHER_LEADER)
+    assert states.shape == (600, 7) and actions.shape == (600, 6)
+    assert states[:, 3].std() < 0.5  # joint_4 has no leader joint
+    assert np.corrcoef(actions[:-4, 0], states[4:, 0])[0, 1] < -0.99  # a sign flipped
+    states, actions = teleoperated_episode(600, rng, body=SO101_MISCALIBRATED)
+    roll = 4
+    assert abs((actions[:, roll] - states[:, roll]).mean()) > 50  # the leader reads far from the follower
+    assert states[:, roll].std() < 0.2 * actions[:, roll].std()  # and the follower barely follows
+    states, actions = teleoperated_episode(300, rng, body=HUMANOID, idle=HUMANOID_LEFT_ARM)
+    assert states.shape == actions.shape == (300, 26) and np.abs(actions).max() < 3.0  # radians
+
+
 @pytest.fixture(scope="session")
 def delayed_arm(data_dir):
     """Two labelled episodes and four held-out ones (with actions) of a follower with a 4-frame transport delay."""
@@ -103,10 +207,10 @@ def delayed_arm_run(delayed_arm, shared_dir):
     )  # fmt: skip
 
 
-def reference_table(stdout: str) -> dict[str, tuple[float, float, float]]:
-    """{joint: (IDM, ridge, copy)} from the dry run's table."""
-    rows = re.findall(r"^\s+(\S+\.pos)\s+(-?[\d.]+)\s+(-?[\d.]+)\s+(-?[\d.]+) \(k=\d+\)", stdout, re.MULTILINE)
-    return {name: (float(idm), float(ridge), float(copy)) for name, idm, ridge, copy in rows}
+def reference_table(stdout: str) -> dict[str, tuple[float, int, float, float]]:
+    """{joint: (IDM, its lag, ridge, copy; NaN for none)} from the dry run's table."""
+    rows = re.findall(r"^  (\S+)\s+(-?[\d.]+)\s+(\d+)\s+(-?[\d.]+)\s+(?:(-?[\d.]+) \(k=\d+\)|–)", stdout, re.MULTILINE)
+    return {name: (float(idm), int(lag), float(ridge), float(copy or "nan")) for name, idm, lag, ridge, copy in rows}
 
 
 def test_the_default_idm_of_a_delayed_arm_is_not_below_the_ridge_regression_on_any_joint(delayed_arm, delayed_arm_run):
@@ -117,7 +221,7 @@ def test_the_default_idm_of_a_delayed_arm_is_not_below_the_ridge_regression_on_a
     )  # fmt: skip
     table = reference_table(result.stdout)
     assert len(table) == 6, result.stdout
-    for joint, (idm, ridge, _) in table.items():
+    for joint, (idm, _, ridge, _) in table.items():
         assert idm >= ridge - 0.005, f"{joint}: IDM {idm} vs ridge {ridge}\n{result.stdout}"
     assert "below the ridge regression" not in result.stdout
 
@@ -126,17 +230,75 @@ def test_the_window_reaches_past_the_delay_and_is_recorded_and_reloaded(delayed_
     checkpoint = delayed_arm_run / CHECKPOINT
     config = json.loads((checkpoint / "config.json").read_text())
     assert config["joint_state_columns"] == list(range(6))
-    assert DELAY + 1 <= config["idm_lag"] <= DELAY + 3  # the servo's response adds a frame or two to the delay
+    lags = config["idm_joint_lags"]
+    assert len(lags) == 6 and all(DELAY + 1 <= lag <= DELAY + 3 for lag in lags)  # the servo adds a frame or two
+    assert config["idm_lag"] == max(lags)
     policy = IUPEPolicy.from_pretrained(checkpoint)
-    assert policy.config.idm_lag == config["idm_lag"]
-    assert max(policy.config.idm_window) == config["idm_lag"] + 1 + config["idm_context"]
+    assert policy.config.idm_joint_lags == lags and policy.config.idm_lag == config["idm_lag"]
+    # The window reaches 0.35 s (11 frames at 30 fps) past t, and past every lag.
+    assert max(policy.config.idm_window) == max(max_lag(30), config["idm_lag"] + 1 + config["idm_context"])
     assert bool(policy.idm_encoder.fitted)
     window = torch.randn(3, len(policy.config.idm_window), 6) * 30
-    # The reloaded model labels a window as the state at the lag plus corrections, not from scratch.
+    # The reloaded model labels a window as each joint's state at its lag plus corrections, not from scratch.
     with torch.no_grad():
         mean = policy.idm_head.mode(policy.eval().idm_window_output(window))
-    copied = window[:, policy.config.idm_window.index(policy.config.idm_lag)]
+    copied = torch.stack([window[:, policy.config.idm_window.index(lag), j] for j, lag in enumerate(lags)], dim=1)
     assert (mean - copied).abs().mean() < (mean - window[:, 0]).abs().mean()
+    # A checkpoint of the earlier arm model (one lag, no idm_joint_lags) is refused in words, not read wrongly.
+    config.pop("idm_joint_lags")
+    (tmp := checkpoint.parent / "earlier-arm-model").mkdir(exist_ok=True)
+    (tmp / "config.json").write_text(json.dumps(config))
+    (tmp / "model.safetensors").write_bytes((checkpoint / "model.safetensors").read_bytes())
+    with pytest.raises(ValueError, match="idm_joint_lags=None.*earlier version.*train it again"):
+        IUPEPolicy.from_pretrained(tmp)
+
+
+def generated_pair(data_dir, name: str, body, idle: tuple[str, ...] = ()) -> tuple:
+    """Two labelled episodes (the ``idle`` leader joints still) and four held-out ones, with actions, of ``body``."""
+    roots = []
+    for part, episodes, seed, still in (("", 2, 0, idle), ("-held-out", 4, 100, ())):
+        root = data_dir / f"{name}{part}"
+        write = lambda root=root, n=episodes, s=seed, still=still: write_arm_recording(  # noqa: E731
+            root, n, 300, seed=s, repo_id=f"local/{root.name}", cameras=False, body=body, idle=still
+        )
+        roots.append(once(root, write, "meta/info.json"))
+    return tuple(roots)
+
+
+def default_run_and_dry_run(shared_dir, labelled, held_out) -> tuple[dict, dict]:
+    """lerobot-train with the defaults on ``labelled``, then the dry run's table on ``held_out``; and the config."""
+    out = shared_dir / "runs" / labelled.name
+    run = train_once(
+        out, "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{labelled.name}",
+        f"--dataset.root={labelled}", "--batch_size=64", "--steps=300", "--save_freq=300", "--num_workers=0",
+        "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false", f"--output_dir={out}",
+    )  # fmt: skip
+    result = run_in_process(
+        "lerobot-iupe-relabel", f"--policy.path={run / CHECKPOINT}", "--dataset.repo_id=local/x",
+        f"--dataset.root={held_out}", "--dry_run=true", check=True,
+    )  # fmt: skip
+    return reference_table(result.stdout), json.loads((run / CHECKPOINT / "config.json").read_text())
+
+
+def test_a_leader_of_another_arm_is_labelled_no_worse_than_a_ridge_regression_on_any_joint(data_dir, shared_dir):
+    labelled, held_out = generated_pair(data_dir, "other-leader", OTHER_LEADER)
+    table, config = default_run_and_dry_run(shared_dir, labelled, held_out)
+    assert len(table) == 6 and config["joint_state_columns"] == [0, 1, 2, 4, 5, 6]
+    for joint, (idm, lag, ridge, copy) in table.items():
+        assert idm >= ridge - 0.005, f"{joint}: IDM {idm} vs ridge {ridge}"
+        assert np.isnan(copy) == (joint != "gripper.pos")  # a copy only where the names match
+        assert lag == config["idm_joint_lags"][list(table).index(joint)]
+
+
+def test_a_humanoid_arm_idle_in_the_labelled_episodes_is_labelled_no_worse_than_its_copy(data_dir, shared_dir):
+    labelled, held_out = generated_pair(data_dir, "humanoid-idle-left", HUMANOID, idle=HUMANOID_LEFT_ARM)
+    table, config = default_run_and_dry_run(shared_dir, labelled, held_out)
+    assert len(table) == 26
+    for joint in HUMANOID_LEFT_ARM:
+        idm, _, ridge, copy = table[joint]
+        assert idm >= copy - 0.005, f"{joint}: IDM {idm} vs copy {copy}"
+    lags = dict(zip(HUMANOID.action_names, config["idm_joint_lags"], strict=True))
+    assert lags["right_index"] > lags["right_elbow"]  # the fingers' own, longer lag
 
 
 def test_an_arm_idm_asked_of_an_unsupervised_run_or_of_cameras_is_refused_naming_the_flags():

@@ -28,16 +28,21 @@ SENSOR_NOISE = 2.0  # standard deviation, in 0–255 levels
 LINKS = (0.12, 0.11, 0.10, 0.06)  # base height, upper arm, forearm, hand (metres)
 
 
-def arm_features(height: int = 480, width: int = 640, video: bool = True, cameras: bool = True) -> dict:
-    """LeRobot features of the recording (as an SO-101 follower records them); ``cameras=False``: joints only."""
+def arm_features(
+    height: int = 480, width: int = 640, video: bool = True, cameras: bool = True, body: ArmBody | None = None
+) -> dict:
+    """LeRobot features of the recording (as an SO-101 follower records them, or ``body``'s joints);
+    ``cameras=False``: joints only."""
+    body = body or SO101
     camera = {
         "dtype": "video" if video else "image",
         "shape": (height, width, 3),
         "names": ["height", "width", "channels"],
     }
-    joints = {"dtype": "float32", "shape": (len(JOINTS),), "names": [f"{j}.pos" for j in JOINTS]}
+    state = {"dtype": "float32", "shape": (len(body.state_names),), "names": list(body.state_names)}
+    action = {"dtype": "float32", "shape": (len(body.action_names),), "names": list(body.action_names)}
     views = {key: dict(camera) for key in CAMERAS} if cameras else {}
-    return {**views, "observation.state": dict(joints), "action": dict(joints)}
+    return {**views, "observation.state": state, "action": action}
 
 
 def arm_points(q: np.ndarray) -> np.ndarray:
@@ -140,51 +145,161 @@ def gravity_offset(q: np.ndarray, gravity: tuple[float, float]) -> np.ndarray:
 
 
 def operator_targets(
-    frames: int, rng: np.random.Generator, tremor: float, grasp_probability: float
+    frames: int,
+    rng: np.random.Generator,
+    tremor: float,
+    grasp_probability: float,
+    low: np.ndarray = LOW,
+    high: np.ndarray = HIGH,
+    gripper: int | None = 5,
+    idle: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The leader's joint positions (frames, 6): glides between random waypoints over 15–50 frames, each followed by a
-    hold of 0–45 frames, all with a trembling hand; and where a grasped object stops the jaws (frames,): its width
-    while it is held, −inf elsewhere. A glide that closes the gripper grasps with ``grasp_probability``: the
-    operator then shuts the leader's jaws (0–5) on an object 10–40 wide."""
-    targets = np.empty((frames, len(JOINTS)), dtype=np.float64)
+    """The leader's joint positions (frames, joints): glides between random waypoints in ``low`` … ``high`` over 15–50
+    frames, each followed by a hold of 0–45 frames, all with a trembling hand; and where a grasped object stops the
+    jaws (frames,): its width while it is held, −inf elsewhere. A glide that closes the ``gripper`` grasps with
+    ``grasp_probability``: the operator then shuts the leader's jaws (0–5 % of its range) on an object 10–40 % wide.
+    Joints marked ``idle`` rest near the middle of their range, the hand's tremor alone moving them."""
+    joints = len(low)
+    span_of = high - low
+    targets = np.empty((frames, joints), dtype=np.float64)
     stops = np.full(frames, -np.inf)
-    current = rng.uniform(LOW * 0.5, HIGH * 0.5)
+    current = rng.uniform(low * 0.5, high * 0.5)
+    idle = np.zeros(joints, dtype=bool) if idle is None else np.asarray(idle, dtype=bool)
+    if idle.any():  # an idle joint rests near the middle of its range, a little apart from one episode to the next
+        current = np.where(idle, (low + high) / 2 + rng.uniform(-0.03, 0.03, joints) * span_of, current)
     t = 0
     while t < frames:
         span, hold = int(rng.integers(15, 51)), int(rng.integers(0, 46))
-        goal = rng.uniform(LOW, HIGH)
-        grasp = goal[5] < current[5] and rng.random() < grasp_probability
+        goal = np.where(idle, current, rng.uniform(low, high))
+        grasp = gripper is not None and goal[gripper] < current[gripper] and rng.random() < grasp_probability
         if grasp:
-            goal[5] = rng.uniform(0.0, 5.0)
+            goal[gripper] = low[gripper] + rng.uniform(0.0, 0.05) * span_of[gripper]
         ease = (1 - np.cos(np.linspace(0, np.pi, span))) / 2
         targets[t : t + span] = (current + ease[:, None] * (goal - current))[: frames - t]
         targets[t + span : t + span + hold] = goal
         if grasp:
-            stops[t : t + span + hold] = min(rng.uniform(10.0, 40.0), current[5])
+            width = low[gripper] + rng.uniform(0.1, 0.4) * span_of[gripper]
+            stops[t : t + span + hold] = min(width, current[gripper])
         current, t = goal, t + span + hold
-    shake = np.zeros(len(JOINTS))
+    shake = np.zeros(joints)
     for t in range(frames):  # a random walk pulled back to the path: the hand never quite rests
-        shake = 0.9 * shake + rng.normal(0.0, tremor, len(JOINTS))
+        shake = 0.9 * shake + rng.normal(0.0, tremor, joints)
         targets[t] += shake
     return targets, stops
 
 
+@dataclass(frozen=True)
+class ArmBody:
+    """Which arms record: the leader's joints (the action's names), the follower's (``observation.state``'s) and how a
+    leader pose becomes the follower's command, ``command = mapping @ leader + offset`` (identity and 0 by default).
+    Per follower joint: frames of delay beyond ``ArmDynamics.delay``, multipliers of its response and dead band.
+    ``unit`` scales the hand's tremor, noises and dead bands (1: degrees; π/180: radians)."""
+
+    name: str
+    action_names: tuple[str, ...]
+    state_names: tuple[str, ...]
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    gripper: int | None = None  # the leader's gripper column (its closings may grasp)
+    follower_gripper: int | None = None  # the follower column that a grasped object stops
+    mapping: tuple[tuple[float, ...], ...] | None = None
+    offset: tuple[float, ...] | None = None
+    extra_delay: tuple[int, ...] | None = None
+    response: tuple[float, ...] | None = None
+    dead_band: tuple[float, ...] | None = None
+    unit: float = 1.0
+    encoder_step: tuple[float, ...] | None = None
+    gravity: bool = False  # SO-101 gravity on shoulder_lift and elbow_flex (``gravity_offset``)
+    robot_type: str = "so101_follower"
+
+    def per_joint(self, values: tuple | None, default: float) -> np.ndarray:
+        return np.full(len(self.state_names), default) if values is None else np.asarray(values, dtype=np.float64)
+
+    def commands(self, leader: np.ndarray) -> np.ndarray:
+        """The follower's commands (frames, state joints) for leader poses (frames, action joints)."""
+        mapped = leader if self.mapping is None else leader @ np.asarray(self.mapping, dtype=np.float64).T
+        return mapped + self.per_joint(self.offset, 0.0)
+
+
+SO101 = ArmBody(
+    "so101", tuple(f"{j}.pos" for j in JOINTS), tuple(f"{j}.pos" for j in JOINTS), tuple(LOW), tuple(HIGH),
+    gripper=5, follower_gripper=5, encoder_step=tuple(ENCODER_STEP), gravity=True,
+)  # fmt: skip
+# A second SO-101 whose leader's wrist_roll reads 74 above the follower's, and whose follower's wrist_roll barely
+# follows (it is driven over a twelfth of the leader's travel, slowly, through a wide dead band: its state spans a
+# few units while the leader's spans tens), as measured on a real recording.
+SO101_MISCALIBRATED = ArmBody(
+    **{**SO101.__dict__, "name": "so101_miscalibrated", "offset": (0, 0, 0, 0, -74.0, 0),
+       "mapping": tuple(tuple(float(i == j) * (1 / 12 if i == 4 else 1) for j in range(6)) for i in range(6)),
+       "response": (1, 1, 1, 1, 0.2, 1), "dead_band": (1, 1, 1, 1, 6.0, 1)},
+)  # fmt: skip
+# An SO-101 leader driving another follower of seven values (an AgileX Piper's joint_1 … joint_6 and gripper): signs,
+# scales, offsets and one coupling differ from the identity, joint_4 has no leader joint and stays near 0.
+OTHER_LEADER = ArmBody(
+    "other_leader", tuple(f"{j}.pos" for j in JOINTS), tuple(f"joint_{i}.pos" for i in range(1, 7)) + ("gripper.pos",),
+    tuple(LOW), tuple(HIGH), gripper=5, follower_gripper=6,
+    mapping=(
+        (-1.0, 0, 0, 0, 0, 0), (0, 0.8, 0.15, 0, 0, 0), (0, 0, -1.1, 0, 0, 0), (0, 0, 0, 0, 0, 0),
+        (0, 0, 0, 0.9, 0, 0), (0, 0, 0, 0, 1.0, 0), (0, 0, 0, 0, 0, 0.7),
+    ),
+    offset=(5.0, -10.0, 20.0, 0.0, 3.0, -8.0, 0.0), encoder_step=(0.001,) * 7, robot_type="piper_follower",
+)  # fmt: skip
+HUMANOID_ARM = ("shoulder_pitch", "shoulder_roll", "shoulder_yaw", "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")
+HUMANOID_HAND = ("thumb_rotation", "thumb_bend", "index", "middle", "ring", "little")
+HUMANOID_NAMES = tuple(
+    f"{side}_{joint}" for part in (HUMANOID_ARM, HUMANOID_HAND) for side in ("left", "right") for joint in part
+)
+HUMANOID_LEFT_ARM = tuple(f"left_{joint}" for joint in HUMANOID_ARM)
+_is_hand = np.array([name.split("_", 1)[1] in HUMANOID_HAND for name in HUMANOID_NAMES])
+# A humanoid's two 7-joint arms and two 6-joint hands in radians, names without ".pos": the fingers answer later
+# (5 more frames of delay) and slower than the arms, as the real recording's copy lags show (4–7 arms, 9–10 fingers).
+HUMANOID = ArmBody(
+    "humanoid", HUMANOID_NAMES, HUMANOID_NAMES,
+    tuple(np.where(_is_hand, 0.0, -1.5)), tuple(np.where(_is_hand, 1.7, 1.5)),
+    extra_delay=tuple(np.where(_is_hand, 5, 0).tolist()), response=tuple(np.where(_is_hand, 0.7, 1.0)),
+    unit=np.pi / 180, encoder_step=(2 * np.pi / 4096,) * 26, robot_type="humanoid",
+)  # fmt: skip
+BODIES = {body.name: body for body in (SO101, SO101_MISCALIBRATED, OTHER_LEADER, HUMANOID)}
+
+
 def teleoperated_episode(
-    frames: int, rng: np.random.Generator, dynamics: ArmDynamics = ArmDynamics()
+    frames: int,
+    rng: np.random.Generator,
+    dynamics: ArmDynamics = ArmDynamics(),
+    body: ArmBody = SO101,
+    idle: tuple[str, ...] = (),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The follower's joint readings (frames, 6) and the leader's positions (frames, 6), float32 (``ArmDynamics``)."""
-    targets, stops = operator_targets(frames, rng, dynamics.tremor, dynamics.grasp_probability)
-    q = targets[0] + rng.normal(0, 2.0, len(JOINTS))
-    positions = np.empty_like(targets)
+    """The follower's joint readings (frames, state joints) and the leader's positions (frames, action joints),
+    float32 (``ArmDynamics``, ``ArmBody``); the leader joints named in ``idle`` stay put but for the hand's tremor."""
+    unit = body.unit
+    idle_mask = np.isin(body.action_names, idle)
+    targets, stops = operator_targets(
+        frames, rng, dynamics.tremor * unit, dynamics.grasp_probability, np.asarray(body.low),
+        np.asarray(body.high), body.gripper, idle_mask,
+    )  # fmt: skip
+    commands = body.commands(targets)
+    joints = commands.shape[1]
+    delays = dynamics.delay + body.per_joint(body.extra_delay, 0).astype(np.int64)
+    response = np.clip(dynamics.response * body.per_joint(body.response, 1.0), 0.0, 1.0)
+    dead_band = dynamics.dead_band * unit * body.per_joint(body.dead_band, 1.0)
+    grip = body.follower_gripper
+    if grip is not None:  # the object's width in the follower's units
+        scale = 1.0 if body.mapping is None else body.mapping[grip][body.gripper]
+        stops = scale * stops + body.per_joint(body.offset, 0.0)[grip]
+    q = commands[0] + rng.normal(0, 2.0 * unit, joints)
+    positions = np.empty_like(commands)
+    columns = np.arange(joints)
     for t in range(frames):
         positions[t] = q
-        command = targets[max(t - dynamics.delay, 0)]
-        error = command + gravity_offset(q, dynamics.gravity) - q
-        q = q + dynamics.response * np.where(np.abs(error) > dynamics.dead_band, error, 0.0)
-        q[5] = max(q[5], stops[max(t + 1 - dynamics.delay, 0)])  # the object, as long as the delayed command holds it
-    readings = positions + rng.normal(0.0, dynamics.reading_noise, positions.shape)
-    if dynamics.quantise:
-        readings = np.round(readings / ENCODER_STEP) * ENCODER_STEP
+        command = commands[np.maximum(t - delays, 0), columns]
+        error = command + gravity_offset(q, dynamics.gravity) - q if body.gravity else command - q
+        q = q + response * np.where(np.abs(error) > dead_band, error, 0.0)
+        if grip is not None:  # the object, as long as the delayed command holds it
+            q[grip] = max(q[grip], stops[max(t + 1 - delays[grip], 0)])
+    readings = positions + rng.normal(0.0, dynamics.reading_noise * unit, positions.shape)
+    if dynamics.quantise and body.encoder_step is not None:
+        step = np.asarray(body.encoder_step)
+        readings = np.round(readings / step) * step
     return readings.astype(np.float32), targets.astype(np.float32)
 
 
@@ -217,21 +332,29 @@ def write_arm_recording(
     progress: bool = False,
     dynamics: ArmDynamics = ArmDynamics(),
     cameras: bool = True,
+    body: ArmBody = SO101,
+    idle: tuple[str, ...] = (),
 ):
     """Write the recording at ``root`` with ``LeRobotDataset.create`` → ``add_frame`` → ``save_episode`` →
     ``finalize``; episode ``i`` is drawn from seed ``seed + i``. ``with_actions=false`` leaves ``action`` out
-    (a state-only recording); ``dynamics`` is how the follower follows the leader; ``cameras=False`` writes the
-    joints alone (quick data for the arm IDM, which reads only them). Returns the finalised ``LeRobotDataset``."""
+    (a state-only recording); ``dynamics`` is how the follower follows the leader, ``body`` which arms record
+    (``BODIES``), ``idle`` the leader joints that stay put; ``cameras=False`` writes the joints alone (quick data for
+    the arm IDM, which reads only them; the cameras draw an SO-101 alone). Returns the finalised ``LeRobotDataset``."""
     from lerobot.configs.video import RGBEncoderConfig
     from lerobot.datasets import LeRobotDataset
     from tqdm.auto import tqdm
 
+    if cameras and body.state_names != SO101.state_names:
+        raise ValueError(f"the cameras draw an SO-101; the {body.name} body is written with cameras=False")
+    unknown = sorted(set(idle) - set(body.action_names))
+    if unknown:
+        raise ValueError(f"idle joints {unknown} are not among the {body.name} leader's {list(body.action_names)}")
     video = video and cameras
-    features = arm_features(height, width, video, cameras)
+    features = arm_features(height, width, video, cameras, body)
     if not with_actions:
         features.pop("action")
     dataset = LeRobotDataset.create(
-        repo_id, fps, features, root=root, robot_type="so101_follower", use_videos=video,
+        repo_id, fps, features, root=root, robot_type=body.robot_type, use_videos=video,
         rgb_encoder=RGBEncoderConfig(vcodec=vcodec) if video else None, streaming_encoding=video,
     )  # fmt: skip
     backgrounds = {key: _table(height, width, seed + n) for n, key in enumerate(CAMERAS)}
@@ -239,7 +362,8 @@ def write_arm_recording(
     noise_rng = np.random.default_rng(seed + 10_000)
     noise_bank = noise_rng.normal(0.0, SENSOR_NOISE, size=(16, height, width, 3)).round().astype(np.int16)
     for episode in tqdm(range(episodes), desc="arm episodes", disable=not progress):
-        positions, targets = teleoperated_episode(frames_per_episode, np.random.default_rng(seed + episode), dynamics)
+        rng = np.random.default_rng(seed + episode)
+        positions, targets = teleoperated_episode(frames_per_episode, rng, dynamics, body, idle)
         for q, target in zip(positions, targets, strict=True):
             frame = {
                 key: render(q, backgrounds[key], view, noise_bank[noise_rng.integers(len(noise_bank))])

@@ -9,8 +9,8 @@ from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims, feature_names
-from lerobot_iupe.policy.joint_fit import lag_of_dataset
-from lerobot_iupe.policy.joint_idm import joint_state_columns
+from lerobot_iupe.policy.joint_fit import sources_of_dataset
+from lerobot_iupe.policy.joint_idm import max_lag, named_sources
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
 # Measured with scripts/measure_context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
@@ -52,14 +52,18 @@ class IUPEConfig(ObservationPolicyConfig):
     # None = 1 when supervised (best overall in benchmarks/relabel.md), else 0; resolved when training starts, so
     # config.json records it (a checkpoint saved before this option existed reads as 0).
     idm_context: int | None = None
-    # Position-controlled arms, where the action and observation.state name the same joints (LeRobot's
-    # "<joint>.pos"; supervised): a_t is predicted as the state idm_lag frames later plus a ridge regression's
-    # correction and a gated network per joint (policy/joint_idm.py), from frames t-k … t+idm_lag+1+k on
-    # observation.state. None = chosen from the labelled data: the lag at which a_t best matches s_{t+lag}
-    # (0 … 0.35 s); 0 elsewhere. Resolved when training starts, so config.json records it.
+    # The linear-first IDM of continuous actions read from observation.state (supervised; policy/joint_idm.py): an
+    # arm's leader (its joints named as the state's, or another arm's), a humanoid's arms and hands. Each action
+    # dimension is predicted as its source state column at its own lag, plus a ridge regression's correction and a
+    # gated network per joint, from frames t-k … t+reach on observation.state, reach = the largest lag + 1 + k and
+    # at least 0.35 s. idm_lag: the largest lag (a value given sets every joint's lag); None = chosen from the data.
     idm_lag: int | None = None
-    # The observation.state column of each action dimension in that arm model (resolved from the names; [] = off,
-    # the IDM of the paper's envs and cameras). None = on wherever every action name is a state name.
+    # Each action dimension's own lag in that model (frames): where a_t best matches its source s_{t+lag}, 0 … 0.35 s.
+    # None = chosen from the labelled data. Resolved when training starts, so config.json records them.
+    idm_joint_lags: list[int] | None = None
+    # The observation.state column of each action dimension in that model: the state of the same name, else the column
+    # the action follows most closely (|correlation| ≥ 0.8 at its lag). [] = off (the IDM of the paper's envs and
+    # cameras). None = on wherever every action dimension has such a column.
     joint_state_columns: list[int] | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
@@ -184,8 +188,11 @@ class IUPEConfig(ObservationPolicyConfig):
 
     @property
     def idm_window(self) -> list[int]:
-        """Frame offsets the IDM reads around t: -k … lag+1+k (lag 0 but for the arm model)."""
+        """Frame offsets the IDM reads around t: -k … k+1; for the linear-first model -k … reach, reach = the largest
+        lag + 1 + k and at least 0.35 s (``max_lag``), as far as a ridge's reference window reaches."""
         k, lag = self.idm_context or 0, self.idm_lag or 0
+        if self.joint_idm:
+            return list(range(-k, max(lag + k + 1, max_lag(self.fps)) + 1))
         return list(range(-k, lag + k + 2))
 
     @property
@@ -244,21 +251,24 @@ class IUPEConfig(ObservationPolicyConfig):
         self.idm_epochs = self.idm_epochs or (5 if self.is_image else 10 if self.is_continuous else 2)
 
     def resolve_joint_idm(self, dataset_meta) -> None:
-        """The arm model's joint columns and lag, from the dataset's names and its labelled frames (once: a
-        checkpoint's values stay)."""
+        """The linear-first model's source columns and lags, from the dataset's names and its labelled frames (once:
+        a checkpoint's values stay)."""
+        features = dataset_meta.features
+        named = named_sources(feature_names(features.get(ACTION)), feature_names(features.get(OBS_STATE)))
         if self.joint_state_columns is None:
-            columns = None
+            sources = None
             own_keys = self.idm_observation_keys in (None, [OBS_STATE])  # an IDM of other keys was asked for
-            features = dataset_meta.features
             float_actions = features.get(ACTION, {}).get("dtype", "").startswith("float")
             if self.supervised and own_keys and float_actions and OBS_STATE in self.observation_keys:
-                columns = joint_state_columns(feature_names(features.get(ACTION)), feature_names(features[OBS_STATE]))
-            columns = None if self.binary_action_dims else columns
-            self.joint_state_columns = columns or []
+                sources = None if self.binary_action_dims else sources_of_dataset(dataset_meta, named, self.idm_lag)
+            self.joint_state_columns, self.idm_joint_lags = sources or ([], None)
+        elif self.joint_idm and self.idm_joint_lags is None:
+            lags = sources_of_dataset(dataset_meta, list(self.joint_state_columns), self.idm_lag)
+            self.idm_joint_lags = lags[1] if lags else [self.idm_lag or 0] * len(self.joint_state_columns)
         if not self.joint_idm:
             self.idm_lag = self.idm_lag or 0
-        elif self.idm_lag is None:
-            self.idm_lag = lag_of_dataset(dataset_meta, self.joint_state_columns)
+        else:
+            self.idm_lag = max(self.idm_joint_lags)
 
     def check_binary_action_dims(self) -> None:
         """``binary_action_dims`` must name dimensions of a continuous action."""

@@ -1,7 +1,7 @@
-"""Fitting the arm model (``joint_idm.JointIDM``) inside a supervised ``lerobot-train`` run: its lag when the policy
-is built, its linear parts in closed form on the first step, its network on every step on all but the last
-``GATE_SHARE`` of each labelled episode, and its per-joint gate, whenever a checkpoint is saved, on those last
-frames."""
+"""Fitting the linear-first IDM (``joint_idm.JointIDM``) inside a supervised ``lerobot-train`` run: each joint's
+source column and lag when the policy is built, its linear parts in closed form on the first step, its network on
+every step on all but the last ``GATE_SHARE`` of each labelled episode, and its per-joint gate, whenever a checkpoint
+is saved, on those last frames."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from torch import nn
 
 from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.readers import ExpertFrames
-from lerobot_iupe.policy.joint_idm import GATE_SHARE, best_copy_lag, gate_weights, max_lag
+from lerobot_iupe.policy.action_space import feature_names
+from lerobot_iupe.policy.joint_idm import GATE_SHARE, action_sources, gate_weights, max_lag, named_sources
 from lerobot_iupe.policy.train_run import training_episodes
 
 log = logging.getLogger("lerobot_iupe")
@@ -30,15 +31,31 @@ def labelled_rows(episodes: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.isin(episodes, np.asarray(chosen)))
 
 
-def lag_of_dataset(dataset_meta, columns: list[int]) -> int:
-    """The lag at which the labelled episodes' actions best match their future joint states (``best_copy_lag``),
-    read before the policy is built: it sets the IDM's window."""
+def named_joints(dataset_meta, columns: list[int]) -> list[bool]:
+    """Whether each action dimension's source column is the state of its own name."""
+    features = dataset_meta.features
+    named = named_sources(feature_names(features.get(ACTION)), feature_names(features.get(OBS_STATE)))
+    if len(named) != len(columns):
+        return [False] * len(columns)
+    return [n == c for n, c in zip(named, columns, strict=True)]
+
+
+def sources_of_dataset(
+    dataset_meta, named: list[int | None], lag: int | None = None
+) -> tuple[list[int], list[int]] | None:
+    """Each action dimension's source column and lag, from the labelled episodes (``joint_idm.action_sources``;
+    ``lag``: every joint's lag, as --policy.idm_lag asks), read before the policy is built: they set the IDM's
+    window. None where an action follows no state column."""
     hf = LeRobotDataset(dataset_meta.repo_id, root=dataset_meta.root, video_backend="pyav").hf_dataset
     episodes = column_array(hf, "episode_index").reshape(-1)
     rows = labelled_rows(episodes)
     states = column_array(hf, OBS_STATE).astype(np.float64).reshape(len(hf), -1)[rows]
     actions = column_array(hf, ACTION).astype(np.float64).reshape(len(hf), -1)[rows]
-    return best_copy_lag(states, actions, episodes[rows], columns, max_lag(dataset_meta.fps))
+    longest = max_lag(dataset_meta.fps) if lag is None else lag
+    sources = action_sources(states, actions, episodes[rows], named, longest)
+    if sources is None or lag is None:
+        return sources
+    return sources[0], [lag] * len(sources[0])
 
 
 def gate_rows(expert: ExpertFrames, rows: np.ndarray) -> np.ndarray:
@@ -66,10 +83,12 @@ class JointFit:
         if not (resume and bool(encoder.fitted)):  # --resume=true goes on with its fit; a new run fits its own data
             windows = self.windows(rows).cpu().numpy()
             actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
-            alphas = encoder.fit(windows, actions, expert.episodes[rows])
+            named = named_joints(policy.dataset_meta, policy.config.joint_state_columns)
+            fit = encoder.fit(windows, actions, expert.episodes[rows], named)
             log.info(
-                f"IUPE arm IDM: lag {policy.config.idm_lag} frames, window {policy.config.idm_window}, ridge alphas "
-                f"{alphas['ridge_alpha']} on {len(rows)} labelled frames ({len(self.gate_rows)} judge the network)"
+                f"IUPE linear-first IDM: lags {policy.config.idm_joint_lags} frames, window "
+                f"{policy.config.idm_window[0]} … {policy.config.idm_window[-1]}, fits {fit['fit']}, ridge alphas "
+                f"{fit['ridge_alpha']} on {len(rows)} labelled frames ({len(self.gate_rows)} judge the network)"
             )
 
     def windows(self, rows: np.ndarray) -> torch.Tensor:

@@ -1,15 +1,20 @@
-"""The inverse dynamics model of a position-controlled arm: where the action and ``observation.state`` name the same
-joints (LeRobot's ``<joint>.pos``), a_t is the leader's position, which the follower reaches a few frames later.
+"""The linear-first inverse dynamics model of continuous actions read from a vector state: a position-controlled
+arm's leader (LeRobot's ``<joint>.pos`` in both ``action`` and ``observation.state``), a leader of another arm (other
+names, another number of joints), a humanoid's arms and hands.
 
-The model is a_t = s_{t+lag} + ridge(window) + gate ⊙ net(window): a copy of the state at the lag where the action
-best matches a future state (chosen from the labelled data), a ridge regression's correction over the window
-(closed form, its strength chosen per joint on held-out blocks of the episodes), and a small network per joint that
-reads that joint's own window, whose correction is kept per joint only as far as it helps on labelled frames it did
-not train on (``gate``). The linear part extrapolates to poses the labelled episodes never reached, as a linear fit
-does; one network over every joint's window at once lost to the ridge alone on held-out episodes (gripper 0.85–0.91
-against 0.92–0.93, wrist_roll 0.988 against 0.9995), one per joint did not (scripts/measure_arm_networks.py). A
-plain ridge regression on the same window is kept beside it as the reference that relabelling reports
-(``reference``)."""
+Each action dimension j has a *source*: the state column of the same name, or else the column it most resembles
+(the largest |correlation| between a_t and a later state, over columns and lags), and a *lag* of its own: where a_t
+best matches s_{t+lag}. The model is a_t = copy_j + linear_j(window) + gate_j · net_j(window): the copy of the
+source at its lag (its own units for a joint of the same name, an affine map of them otherwise), a ridge
+regression's correction solved in closed form, and a small network per joint over its source's window whose
+correction is kept only as far as it helps on labelled frames it did not train on (``gate``).
+
+The correction is one of two candidates per joint, both shrunk toward the copy: a ridge on the joint's own window
+(physically grounded) or a ridge over every state column's window. The second is taken only where it predicts
+held-out *episodes* clearly better (``CLEARLY_BETTER``): on a new episode a joint that barely moved in the labelled
+ones still follows its own state, and a fit over many columns from few episodes extrapolates worse (on a real
+humanoid, a ridge over all 26 joints scored R² 0.852 where each joint's own window scored 0.980). A plain ridge on the
+same window (``reference``) is kept beside it as the simplest fit that relabelling reports."""
 
 from __future__ import annotations
 
@@ -19,7 +24,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-# The longest lag searched: 0.35 s, well past the delays measured on SO-100/101 arms (about 0.13 s); 10 frames at least.
+# The longest lag searched and the window's reach: 0.35 s, well past the delays measured on real arms (about 0.13 s on
+# an SO-101, up to 0.33 s on a humanoid's fingers); 10 frames at least.
 MAX_LAG_SECONDS = 0.35
 RIDGE_ALPHAS = tuple(10.0**p for p in range(-3, 6))
 MAX_FOLDS = 20
@@ -28,6 +34,10 @@ BLOCKS = 10
 REFERENCE_ALPHA = 1.0
 # Share of each labelled episode, at its end, on which the network's gate is judged (it never trains on them).
 GATE_SHARE = 0.2
+# A differently-named action dimension follows a state column when their |correlation| (at the best lag) reaches this.
+RESEMBLANCE = 0.8
+# The fit over every column replaces the joint's own window only where its held-out error is below this share of it.
+CLEARLY_BETTER = 0.8
 
 
 def joint_state_columns(action_names: list[str] | None, state_names: list[str] | None) -> list[int] | None:
@@ -41,62 +51,137 @@ def joint_state_columns(action_names: list[str] | None, state_names: list[str] |
     return [position[name] for name in action_names]
 
 
+def named_sources(action_names: list[str] | None, state_names: list[str] | None) -> list[int | None]:
+    """For each action dimension, the state column of the same name, or None."""
+    position = {name: i for i, name in enumerate(state_names or [])}
+    return [position.get(name) for name in action_names or []]
+
+
 def max_lag(fps: float | None) -> int:
     """The longest lag searched at ``fps`` frames per second (``MAX_LAG_SECONDS``; 10 frames at least)."""
     return max(10, math.ceil(MAX_LAG_SECONDS * (fps or 30)))
 
 
+def _lagged_pairs(episodes: np.ndarray, k: int) -> np.ndarray:
+    """Rows t whose t+k lies in the same episode."""
+    return np.flatnonzero(episodes[k:] == episodes[: len(episodes) - k])
+
+
+def joint_copy_errors(
+    states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int], longest: int = 10
+) -> np.ndarray:
+    """(longest + 1, joints): mean absolute difference between a_t and s_{t+k} for k = 0 … ``longest``, each joint
+    scaled by its actions' spread, over the frames whose t+k lies in their episode (inf where none does)."""
+    spread = actions.std(axis=0) + 1e-6
+    errors = np.full((longest + 1, actions.shape[1]), np.inf)
+    for k in range(longest + 1):
+        rows = _lagged_pairs(episodes, k)
+        if len(rows):
+            errors[k] = (np.abs(actions[rows] - states[rows + k][:, columns]) / spread).mean(axis=0)
+    return errors
+
+
 def copy_errors(
     states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int], longest: int = 10
 ) -> np.ndarray:
-    """Mean absolute difference between a_t and s_{t+k} for k = 0 … ``longest`` (each joint scaled by its actions'
-    spread, then averaged over joints), over the frames whose t+k lies in their episode."""
-    spread = actions.std(axis=0) + 1e-6
-    errors = []
-    for k in range(longest + 1):
-        same = episodes[k:] == episodes[: len(episodes) - k]
-        if not same.any():
-            errors.append(np.inf)
-            continue
-        gap = np.abs(actions[: len(actions) - k][same] - states[k:][same][:, columns]) / spread
-        errors.append(float(gap.mean()))
-    return np.asarray(errors)
+    """``joint_copy_errors`` averaged over joints: one error per k."""
+    return joint_copy_errors(states, actions, episodes, columns, longest).mean(axis=1)
 
 
 def best_copy_lag(
     states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int], longest: int = 10
 ) -> int:
-    """The k at which s_{t+k} best matches a_t (``copy_errors``): how long the follower takes to reach the leader."""
+    """The k at which s_{t+k} best matches a_t over all joints (``copy_errors``)."""
     return int(np.argmin(copy_errors(states, actions, episodes, columns, longest)))
 
 
-def fit_ridge(
-    features: np.ndarray, targets: np.ndarray, groups: np.ndarray, alphas: tuple[float, ...] = RIDGE_ALPHAS
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Ridge regression targets ≈ features @ W + b on standardised features (the intercept not penalised), the
-    strength of each target column chosen from ``alphas`` by the squared error of its held-out predictions: each
-    episode (``groups``, in frame order) cut into ``BLOCKS`` contiguous blocks, one block left out at a time (over
-    ``MAX_FOLDS`` blocks, that many folds of them). Blocks rather than whole episodes: with two labelled episodes,
-    two folds chose the strength by chance. Each fold is solved from per-fold sums (ZᵀZ, Zᵀy), so the cost does not
-    grow with folds × frames. Returns W and b in the features' own units, the alphas and their held-out squared
-    errors."""
-    features, targets = np.asarray(features, np.float64), np.asarray(targets, np.float64)
-    mean, std = features.mean(axis=0), features.std(axis=0) + 1e-6
-    scaled = np.concatenate([(features - mean) / std, np.ones((len(features), 1))], axis=1)
-    folds = episode_blocks(groups) % MAX_FOLDS
-    stats = [
+def joint_copy_lags(
+    states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, columns: list[int], longest: int = 10
+) -> list[int]:
+    """Each joint's own k at which s_{t+k} best matches a_t: how long its follower takes to reach its leader."""
+    return np.argmin(joint_copy_errors(states, actions, episodes, columns, longest), axis=0).tolist()
+
+
+def resemblance(states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, longest: int = 10) -> np.ndarray:
+    """(longest + 1, actions, states): |correlation| between a_t and s_{t+k} over the frames whose t+k lies in their
+    episode (0 for a column that does not move)."""
+    result = np.zeros((longest + 1, actions.shape[1], states.shape[1]))
+    for k in range(longest + 1):
+        rows = _lagged_pairs(episodes, k)
+        if len(rows) < 3:
+            continue
+        a, s = actions[rows], states[rows + k]
+        a, s = a - a.mean(axis=0), s - s.mean(axis=0)
+        norms = np.linalg.norm(a, axis=0)[:, None] * np.linalg.norm(s, axis=0)[None, :]
+        result[k] = np.abs(a.T @ s) / np.maximum(norms, 1e-12) * (norms > 1e-9)
+    return result
+
+
+def action_sources(
+    states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, named: list[int | None], longest: int = 10
+) -> tuple[list[int], list[int]] | None:
+    """Each action dimension's source column and lag: the state of the same name at its best copy lag, else the
+    (column, lag) of largest |correlation|. None when a differently-named dimension resembles no column
+    (``RESEMBLANCE``): its action is not read off the state (an engine's thrust, say)."""
+    states, actions = np.asarray(states, np.float64), np.asarray(actions, np.float64)
+    columns, lags = [], []
+    correlation = None
+    for j, column in enumerate(named):
+        if column is not None:
+            errors = joint_copy_errors(states, actions[:, [j]], episodes, [column], longest)[:, 0]
+            columns.append(column)
+            lags.append(int(np.argmin(errors)))
+            continue
+        if correlation is None:
+            correlation = resemblance(states, actions, episodes, longest)
+        lag, column = np.unravel_index(np.argmax(correlation[:, j]), correlation[:, j].shape)
+        if correlation[lag, j, column] < RESEMBLANCE:
+            return None
+        columns.append(int(column))
+        lags.append(int(lag))
+    return columns, lags
+
+
+def _fold_sums(scaled: np.ndarray, targets: np.ndarray, folds: np.ndarray) -> list[tuple]:
+    return [
         (scaled[fold].T @ scaled[fold], scaled[fold].T @ targets[fold], (targets[fold] ** 2).sum(axis=0))
         for fold in (folds == f for f in np.unique(folds))
     ]
-    gram, moment = sum(g for g, _, _ in stats), sum(m for _, m, _ in stats)
-    penalty = np.diag(np.r_[np.ones(features.shape[1]), 0.0])
-    errors = np.zeros((len(alphas), targets.shape[1]))
+
+
+def _held_out_errors(sums: list[tuple], alphas: tuple[float, ...], penalty: np.ndarray) -> np.ndarray:
+    """(alphas, targets): squared error of each fold's predictions by the fit on the other folds."""
+    gram, moment = sum(g for g, _, _ in sums), sum(m for _, m, _ in sums)
+    errors = np.zeros((len(alphas), moment.shape[1]))
     for n, alpha in enumerate(alphas):
-        for fold_gram, fold_moment, fold_square in stats:
+        for fold_gram, fold_moment, fold_square in sums:
             coef = np.linalg.solve(gram - fold_gram + alpha * penalty, moment - fold_moment)
             predicted_square = (coef * (fold_gram @ coef)).sum(axis=0)
             errors[n] += fold_square - 2.0 * (coef * fold_moment).sum(axis=0) + predicted_square
+    return errors
+
+
+def fit_ridge(
+    features: np.ndarray,
+    targets: np.ndarray,
+    groups: np.ndarray,
+    alphas: tuple[float, ...] = RIDGE_ALPHAS,
+    folds: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ridge regression targets ≈ features @ W + b on standardised features (the intercept not penalised), the
+    strength of each target column chosen from ``alphas`` by the squared error of its held-out predictions. The
+    folds: ``folds`` (a fold number per frame) where given, else each episode (``groups``, in frame order) cut into
+    ``BLOCKS`` contiguous blocks, one block left out at a time (over ``MAX_FOLDS`` blocks, that many folds of them).
+    Each fold is solved from per-fold sums (ZᵀZ, Zᵀy), so the cost does not grow with folds × frames. Returns W and
+    b in the features' own units, the alphas and their held-out squared errors."""
+    features, targets = np.asarray(features, np.float64), np.asarray(targets, np.float64)
+    mean, std = features.mean(axis=0), features.std(axis=0) + 1e-6
+    scaled = np.concatenate([(features - mean) / std, np.ones((len(features), 1))], axis=1)
+    penalty = np.diag(np.r_[np.ones(features.shape[1]), 0.0])
+    sums = _fold_sums(scaled, targets, episode_blocks(groups) % MAX_FOLDS if folds is None else folds)
+    errors = _held_out_errors(sums, alphas, penalty)
     chosen = errors.argmin(axis=0)
+    gram, moment = sum(g for g, _, _ in sums), sum(m for _, m, _ in sums)
     coef = np.zeros((scaled.shape[1], targets.shape[1]))
     for n in np.unique(chosen):
         coef[:, chosen == n] = np.linalg.solve(gram + alphas[n] * penalty, moment[:, chosen == n])
@@ -116,6 +201,13 @@ def episode_blocks(groups: np.ndarray) -> np.ndarray:
     return index * BLOCKS + position
 
 
+def selection_folds(groups: np.ndarray) -> np.ndarray:
+    """The folds that choose between candidate fits: whole episodes (up to ``MAX_FOLDS``) where there are two or
+    more, which is what a new episode asks of a fit (another pose of a joint that barely moved); blocks otherwise."""
+    episodes, index = np.unique(groups, return_inverse=True)
+    return index.reshape(-1) % MAX_FOLDS if len(episodes) >= 2 else episode_blocks(groups) % MAX_FOLDS
+
+
 def gate_weights(residual: np.ndarray, correction: np.ndarray) -> np.ndarray:
     """Per joint, the share w ∈ [0, 1] of the network's ``correction`` that minimises the squared error of
     ``residual − w · correction`` (what the linear part leaves, on frames the network did not train on)."""
@@ -123,26 +215,86 @@ def gate_weights(residual: np.ndarray, correction: np.ndarray) -> np.ndarray:
     return np.clip(fit, 0.0, 1.0)
 
 
-class JointIDM(nn.Module):
-    """a_t from the window of joint states (B, F, D) at the config's offsets (raw units): copy of s_{t+lag} plus the
-    ridge's correction (buffers, fitted once by ``fit``) plus the gated per-joint network; ``forward`` returns the
-    network's per-joint correction (B, A), which the IDM head turns into the action's scaled units; ``prior`` is
-    the linear part in raw units."""
+def copy_map(
+    flat: np.ndarray, actions: np.ndarray, state_dim: int, frames: list[int], columns: list[int], named: list[bool]
+) -> np.ndarray:
+    """(features, joints): the copy of each joint's source column at its window frame (``frames``) as a linear map of
+    the flattened windows ``flat`` (N, frames × ``state_dim``): gain 1 for a joint of the same name, the
+    least-squares slope otherwise (another arm's joint: its own scale and sign; the offset goes to the bias)."""
+    copy = np.zeros((flat.shape[1], len(columns)))
+    for j, (frame, column) in enumerate(zip(frames, columns, strict=True)):
+        feature = frame * state_dim + column
+        gain = 1.0
+        if not named[j]:
+            source = flat[:, feature] - flat[:, feature].mean()
+            gain = float(source @ (actions[:, j] - actions[:, j].mean()) / max(source @ source, 1e-12))
+        copy[feature, j] = gain
+    return copy
 
-    def __init__(self, offsets: list[int], lag: int, columns: list[int], state_dim: int, hidden: int):
+
+def fit_linear(
+    windows: np.ndarray,
+    actions: np.ndarray,
+    episodes: np.ndarray,
+    frames: list[int],
+    columns: list[int],
+    named: list[bool],
+) -> tuple[np.ndarray, np.ndarray, dict[str, list]]:
+    """The linear part a ≈ flat(window) @ W + b from labelled windows (N, F, D) and actions (N, A): the copy
+    (``copy_map``) plus, per joint, a ridge correction shrunk toward it, over the joint's own source column at every
+    frame of the window, or over every column where that predicts held-out episodes clearly better
+    (``CLEARLY_BETTER``, ``selection_folds``). Returns W, b and per joint the fit taken ("own" or "all"), its
+    strength and both candidates' held-out squared errors."""
+    count, window_frames, state_dim = windows.shape
+    flat = windows.reshape(count, -1).astype(np.float64)
+    actions = np.asarray(actions, np.float64)
+    copy = copy_map(flat, actions, state_dim, frames, columns, named)
+    residual = actions - flat @ copy
+    folds = selection_folds(episodes)
+    all_weight, all_bias, all_alpha, all_error = fit_ridge(flat, residual, episodes, folds=folds)
+    weight, bias = copy.copy(), np.zeros(actions.shape[1])
+    taken, alphas, own_errors = [], [], []
+    for j, column in enumerate(columns):
+        own = np.arange(window_frames) * state_dim + column
+        own_weight, own_bias, own_alpha, own_error = fit_ridge(flat[:, own], residual[:, [j]], episodes, folds=folds)
+        own_errors.append(float(own_error[0]))
+        if all_error[j] < CLEARLY_BETTER * own_error[0]:
+            weight[:, j] += all_weight[:, j]
+            bias[j], alpha, fit = all_bias[j], all_alpha[j], "all"
+        else:
+            weight[own, j] += own_weight[:, 0]
+            bias[j], alpha, fit = own_bias[0], own_alpha[0], "own"
+        taken.append(fit)
+        alphas.append(float(alpha))
+    report = {"fit": taken, "ridge_alpha": alphas, "own_error": own_errors, "all_error": all_error.tolist()}
+    return weight, bias, report
+
+
+class JointIDM(nn.Module):
+    """a_t from the window of joint states (B, F, D) at the config's offsets (raw units): the linear part (the copy of
+    each joint's source at its lag plus a ridge correction; buffers, fitted once by ``fit``) plus the gated per-joint
+    network; ``forward`` returns the network's per-joint correction (B, A), which the IDM head turns into the
+    action's scaled units; ``prior`` is the linear part in raw units."""
+
+    def __init__(self, offsets: list[int], lags: list[int], columns: list[int], state_dim: int, hidden: int):
         super().__init__()
         frames, joints = len(offsets), len(columns)
-        self.copy_frame = offsets.index(lag)
+        self.copy_frames = [offsets.index(lag) for lag in lags]
         self.register_buffer("columns", torch.as_tensor(columns, dtype=torch.long), persistent=False)
         features = frames * state_dim
-        for name, shape in (("weight", (features, joints)), ("reference_weight", (features, joints))):
+        # "linear_*", not the "weight"/"bias" of checkpoints whose linear part left the copy out: those must not load.
+        for name, shape in (("linear_weight", (features, joints)), ("reference_weight", (features, joints))):
             self.register_buffer(name, torch.zeros(shape))
-        for name in ("bias", "reference_bias", "gate"):
+        for name in ("linear_bias", "reference_bias", "gate"):
             self.register_buffer(name, torch.zeros(joints))
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
-        # The joints' mean and spread: the network reads standardised windows.
+        # The joints' mean and spread (the network reads standardised windows) and the standardised range the network
+        # saw: a pose outside it is clamped to its edge, so that a joint that barely moved in the labelled episodes
+        # cannot send the network far outside what it learned.
         self.register_buffer("center", torch.zeros(state_dim))
         self.register_buffer("scale", torch.ones(state_dim))
+        self.register_buffer("low", torch.full((state_dim,), -1e6))
+        self.register_buffer("high", torch.full((state_dim,), 1e6))
         # One small MLP per joint over that joint's own window (grouped 1×1 convolutions), its output starting at 0.
         self.net = nn.Sequential(
             nn.Conv1d(joints * frames, joints * hidden, 1, groups=joints),
@@ -155,43 +307,38 @@ class JointIDM(nn.Module):
         nn.init.zeros_(self.net[-1].bias)
 
     def prior(self, window: Tensor) -> Tensor:
-        """Copy plus ridge correction (B, A), raw action units."""
-        flat = window.float().flatten(1)
-        return window[:, self.copy_frame, self.columns].float() + flat @ self.weight + self.bias
+        """The linear part (B, A), raw action units: copy plus ridge correction."""
+        return window.float().flatten(1) @ self.linear_weight + self.linear_bias
 
     def reference(self, window: Tensor) -> Tensor:
         """The plain ridge regression on the same window (B, A): the simplest fit, reported beside the model."""
         return window.float().flatten(1) @ self.reference_weight + self.reference_bias
 
     def forward(self, window: Tensor) -> Tensor:
-        """The network's per-joint correction (B, A): each joint reads its own window, standardised."""
-        own = (window.float()[:, :, self.columns] - self.center[self.columns]) / self.scale[self.columns]
+        """The network's per-joint correction (B, A): each joint reads its own source's window, standardised."""
+        standard = (window.float() - self.center) / self.scale
+        own = torch.maximum(torch.minimum(standard, self.high), self.low)[:, :, self.columns]
         return self.net(own.transpose(1, 2).reshape(len(own), -1, 1)).squeeze(-1)
 
-    def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray) -> dict[str, list[float]]:
-        """The linear parts in closed form from labelled windows (N, F, D) and actions (N, A): per joint, the ridge
-        on the residual a_t − s_{t+lag} (shrunk towards the copy) or on a_t itself, whichever predicts held-out
-        blocks better (``ridge_alpha``: its strength, negative for the fit on a_t), and the plain reference ridge
-        on a_t (``REFERENCE_ALPHA``)."""
+    def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray, named: list[bool]) -> dict[str, list]:
+        """The linear parts in closed form from labelled windows (N, F, D) and actions (N, A) (``fit_linear``;
+        ``named``: whether each joint's source is the state of its own name), and the plain reference ridge on a_t
+        (``REFERENCE_ALPHA``)."""
+        columns = self.columns.cpu().numpy().tolist()
+        weight, bias, report = fit_linear(windows, actions, episodes, self.copy_frames, columns, named)
         flat = windows.reshape(len(windows), -1).astype(np.float64)
-        columns = self.columns.cpu().numpy()
-        copy = np.zeros((flat.shape[1], len(columns)))  # the copy of s_{t+lag} as a linear map of the window
-        copy[self.copy_frame * windows.shape[2] + columns, np.arange(len(columns))] = 1.0
-        weight, bias, alpha, error = fit_ridge(flat, actions - flat @ copy, episodes)
-        # A joint whose held-out error is lower without the copy (shrunk towards 0, not towards the copy) takes
-        # that fit: the linear part is then the better of the two by the same cross-validation.
-        plain_weight, plain_bias, plain_alpha, plain_error = fit_ridge(flat, actions, episodes)
-        plain = plain_error < error
-        weight = np.where(plain, plain_weight - copy, weight)
-        bias, alpha = np.where(plain, plain_bias, bias), np.where(plain, -plain_alpha, alpha)
         reference_weight, reference_bias, *_ = fit_ridge(flat, actions, episodes, (REFERENCE_ALPHA,))
-        device = self.weight.device
+        device = self.linear_weight.device
         as_buffer = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32, device=device)  # noqa: E731
-        self.weight.copy_(as_buffer(weight))
-        self.bias.copy_(as_buffer(bias))
+        self.linear_weight.copy_(as_buffer(weight))
+        self.linear_bias.copy_(as_buffer(bias))
         self.reference_weight.copy_(as_buffer(reference_weight))
         self.reference_bias.copy_(as_buffer(reference_bias))
-        self.center.copy_(as_buffer(windows.reshape(-1, windows.shape[-1]).mean(axis=0)))
-        self.scale.copy_(as_buffer(windows.reshape(-1, windows.shape[-1]).std(axis=0) + 1e-3))
+        values = windows.reshape(-1, windows.shape[-1]).astype(np.float64)
+        center, scale = values.mean(axis=0), values.std(axis=0) + 1e-3
+        self.center.copy_(as_buffer(center))
+        self.scale.copy_(as_buffer(scale))
+        self.low.copy_(as_buffer((values.min(axis=0) - center) / scale))
+        self.high.copy_(as_buffer((values.max(axis=0) - center) / scale))
         self.fitted.fill_(True)
-        return {"ridge_alpha": alpha.tolist()}
+        return report

@@ -40,9 +40,16 @@ class IUPEPolicy(PreTrainedPolicy):
         frames, history = len(config.idm_window), config.n_obs_steps
         columns = layout.indices(i for i, key in enumerate(config.observation_keys) if key in config.idm_keys)
         self.idm_columns = None if len(columns) == layout.size else torch.as_tensor(columns)
-        if config.joint_idm:  # a position-controlled arm: its own model over the joint states
+        if config.joint_idm:  # actions read from the state (an arm's leader): the linear-first model
+            if not config.idm_joint_lags or len(config.idm_joint_lags) != len(config.joint_state_columns):
+                raise ValueError(
+                    f"this checkpoint's linear-first IDM has joint_state_columns={config.joint_state_columns} but "
+                    f"idm_joint_lags={config.idm_joint_lags}: it was trained by an earlier version of lerobot_iupe, "
+                    "whose arm model this one cannot read; train it again (lerobot-train --policy.type=iupe "
+                    "--policy.supervised=true …)"
+                )
             self.idm_encoder = JointIDM(
-                config.idm_window, config.idm_lag, config.joint_state_columns, len(columns), config.hidden_dim
+                config.idm_window, config.idm_joint_lags, config.joint_state_columns, len(columns), config.hidden_dim
             )
             self.pm_encoder = (
                 FusedEncoder(layout, history, config)
@@ -63,6 +70,7 @@ class IUPEPolicy(PreTrainedPolicy):
             self.pm_encoder = VectorEncoder(history * layout.size, config.token_dim, hidden, config.attention)
         self.idm_head = make_action_head(config.action_dim if config.joint_idm else hidden, config)
         if config.joint_idm:  # the head's mean passes each joint's correction on as it is, to start with
+            self.idm_head.clipped = False
             with torch.no_grad():
                 self.idm_head.weight[: config.action_dim] = torch.eye(config.action_dim)
                 self.idm_head.bias.zero_()

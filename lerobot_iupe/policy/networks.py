@@ -259,6 +259,9 @@ class GaussianHead(nn.Linear):
         binary[list(binary_dims)] = True
         # Not saved with the weights: config.json's binary_action_dims rebuilds it, and older checkpoints still load.
         self.register_buffer("binary", binary, persistent=False)
+        # Modes and draws clipped into the bounds. The linear-first IDM's are not: its bounds come from a few labelled
+        # episodes, and a joint that barely moved in them must still be labelled where it goes in others.
+        self.clipped = True
 
     def forward(self, features: Tensor) -> Tensor:
         """[mean, log_std] (B, 2·action_dim); the log-std part sees ``features`` detached."""
@@ -331,7 +334,7 @@ class GaussianHead(nn.Linear):
                 torch.rand(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype) if explore else 0.5
             )
             scaled = torch.where(self.binary, torch.where(self._share_of_high(mean) > threshold, 1.0, -1.0), scaled)
-        return self._unscale(scaled.clamp(-1.0, 1.0))
+        return self._unscale(scaled.clamp(-1.0, 1.0) if self.clipped else scaled)
 
     def mode(self, output: Tensor) -> Tensor:
         return self.choose(output, explore=False)

@@ -151,15 +151,19 @@ class RelabelReport:
         return "\n".join(lines)
 
     def reference_table(self) -> list[str]:
-        """R² per joint of the IDM beside its references; a joint where the IDM is more than 0.005 below the ridge
-        regression is marked."""
+        """R² per joint of the IDM (with its lag in frames) beside its references; a joint where the IDM is more than
+        0.005 below the ridge regression is marked. An action with no state of its name has no copy ("–")."""
         refs = self.references
         width = max(len(n) for n in self.action_names)
-        lines = [f"  {'R² per joint':<{width}}  {'IDM':>7}  {'ridge':>7}  {'copy s_{t+k}':>14}"]
+        lines = [f"  {'R² per joint':<{width}}  {'IDM':>7}  {'lag':>3}  {'ridge':>7}  {'copy s_{t+k}':>14}"]
+        lags = refs.get("lag") or [None] * len(self.action_names)
         rows = zip(
-            self.action_names, self.agreement_per_dimension, refs["ridge"], refs["copy"], refs["copy_lag"], strict=True
-        )
-        for name, idm, ridge, copy, lag in rows:
+            self.action_names, self.agreement_per_dimension, lags, refs["ridge"], refs["copy"], refs["copy_lag"],
+            strict=True,
+        )  # fmt: skip
+        for name, idm, lag, ridge, copy, copy_lag in rows:
             mark = "  ← below the ridge regression" if idm < ridge - 0.005 else ""
-            lines.append(f"  {name:<{width}}  {idm:7.4f}  {ridge:7.4f}  {copy:7.4f} (k={lag}){mark}")
+            copied = f"{copy:7.4f} (k={copy_lag})" if copy_lag >= 0 else f"{'–':>7}" + " " * 7
+            lag_text = "–" if lag is None else str(lag)
+            lines.append(f"  {name:<{width}}  {idm:7.4f}  {lag_text:>3}  {ridge:7.4f}  {copied}{mark}")
         return lines

@@ -1,6 +1,7 @@
-"""The simplest fits beside the IDM, on a dataset that already has actions (``--dry_run=true``): for the arm model
-(``policy.joint_idm``), per joint, the plain ridge regression fitted on the IDM's own labelled frames and window,
-and the best copy of a future state a_t ≈ s_{t+k}. A user sees at once whether the IDM earns its place."""
+"""The simplest fits beside the IDM, on a dataset that already has actions (``--dry_run=true``): for the linear-first
+model (``policy.joint_idm``), per joint, the plain ridge regression fitted on the IDM's own labelled frames and
+window, and the best copy of a future state of the same name a_t ≈ s_{t+k} (none for an action whose name is not a
+state's: its units are another arm's). A user sees at once whether the IDM earns its place."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import torch
 
 from lerobot_iupe.data.readers import window_indices
 from lerobot_iupe.policy.algorithm import r_squared
-from lerobot_iupe.policy.joint_idm import max_lag
+from lerobot_iupe.policy.joint_idm import max_lag, named_sources
 
 
 def per_dimension_r2(predicted: np.ndarray, true: np.ndarray) -> list[float]:
@@ -25,29 +26,36 @@ def episode_rows(bounds: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray,
     return first, last, np.repeat(np.arange(len(bounds)), lengths)
 
 
-def best_copies(states: np.ndarray, actions: np.ndarray, columns: list[int], bounds, rows: np.ndarray, longest: int):
+def best_copies(
+    states: np.ndarray, actions: np.ndarray, columns: list[int | None], bounds, rows: np.ndarray, longest: int
+) -> list[tuple[float, int]]:
     """Per action dimension, (R², k) of the best copy a_t ≈ s_{t+k}, k = 0 … ``longest`` (clamped into the
-    episode)."""
+    episode); (NaN, -1) where ``columns`` has no column."""
     first, last, _ = episode_rows(bounds)
-    best = [(-np.inf, 0)] * len(columns)
+    best = [(-np.inf, 0) if column is not None else (float("nan"), -1) for column in columns]
     for k in range(longest + 1):
         later = np.clip(rows + k, first[rows], last[rows])
-        scores = per_dimension_r2(states[later][:, columns], actions[rows])
-        best = [max(b, (s, k)) for b, s in zip(best, scores, strict=True)]
+        for j, column in enumerate(columns):
+            if column is not None:
+                best[j] = max(best[j], (r_squared(states[later, column], actions[rows, j]), k))
     return best
 
 
 @torch.no_grad()
-def joint_references(policy, states: np.ndarray, actions: np.ndarray, bounds, rows: np.ndarray) -> dict:
-    """{"ridge": [R² per dimension], "copy": [R² per dimension], "copy_lag": [k per dimension]} on ``rows`` (those
-    with a successor): the references of the arm model's labels."""
+def joint_references(
+    policy, states: np.ndarray, actions: np.ndarray, bounds, rows: np.ndarray, state_names: list[str] | None = None
+) -> dict:
+    """{"ridge": [R² per dimension], "copy": [R² per dimension], "copy_lag": [k per dimension], "lag": [the IDM's
+    lag per dimension]} on ``rows`` (those with a successor): the references of the linear-first model's labels."""
     config = policy.config
     first, last, _ = episode_rows(bounds)
     window = torch.as_tensor(states[window_indices(rows, config.idm_window, first[rows], last[rows])])
     ridge = policy.idm_encoder.reference(window.to(policy.device_of_weights)).cpu().numpy()
-    copies = best_copies(states, actions, config.joint_state_columns, bounds, rows, max_lag(config.fps))
+    named = named_sources(config.action_names, state_names) if state_names else [None] * config.action_dim
+    copies = best_copies(states, actions, named, bounds, rows, max_lag(config.fps))
     return {
         "ridge": per_dimension_r2(ridge, actions[rows]),
         "copy": [score for score, _ in copies],
         "copy_lag": [lag for _, lag in copies],
+        "lag": list(config.idm_joint_lags),
     }

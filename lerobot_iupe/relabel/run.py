@@ -24,6 +24,7 @@ from lerobot_iupe.data.storage import (
     write_iupe_meta,
 )
 from lerobot_iupe.data.video import default_video_backend
+from lerobot_iupe.policy.action_space import feature_names
 from lerobot_iupe.policy.algorithm import r_squared
 from lerobot_iupe.relabel.checks import (
     check_has_episodes,
@@ -112,7 +113,8 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
             per_dimension = per_dimension_r2(labels[inner], true)
             if config.joint_idm:
                 states = column_array(dataset.hf_dataset, OBS_STATE).astype(np.float32).reshape(total, -1)
-                references = joint_references(policy, states, existing, bounds, np.flatnonzero(inner))
+                state_names = feature_names(meta.features.get(OBS_STATE))
+                references = joint_references(policy, states, existing, bounds, np.flatnonzero(inner), state_names)
         else:
             agreement = float((existing.reshape(total)[inner] == labels[inner]).mean())
     if config.is_continuous:
