@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml .python-version
 install: $(STAMP)
 
 # System FFmpeg libraries let torchcodec (LeRobot's preferred video decoder) load: it decodes our 64x64 maze videos
-# about 2x faster than PyAV (scripts/measure_decoding.py) and spares every LeRobot process a page-long warning.
+# about 2x faster than PyAV (benchmarks/measure/decoding.py) and spares every LeRobot process a page-long warning.
 # Best effort: without root (or passwordless sudo) LeRobot falls back to PyAV, and everything still works.
 ffmpeg:
 	@if command -v ffmpeg >/dev/null; then exit 0; fi; \
@@ -37,8 +37,8 @@ opengl:
 	|| echo "note: could not install EGL: the SO-101 camera cannot render"
 
 test: $(STAMP)
-	$(VENV)/bin/ruff check lerobot_iupe lerobot_policy_iupe.py scripts tests
-	$(VENV)/bin/ruff format --check lerobot_iupe lerobot_policy_iupe.py scripts tests
+	$(VENV)/bin/ruff check lerobot_iupe lerobot_policy_iupe.py scripts benchmarks tests
+	$(VENV)/bin/ruff format --check lerobot_iupe lerobot_policy_iupe.py scripts benchmarks tests
 	$(PY) -m pytest -q -n 2 --durations=25
 
 demo: $(STAMP)

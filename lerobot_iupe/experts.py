@@ -85,7 +85,7 @@ class MountainCarExpert:
 
 
 class AcrobotExpert:
-    """A 6-16-3 tanh network over the observation, found by ``scripts/find_acrobot_expert.py``."""
+    """A 6-16-3 tanh network over the observation, found by ``benchmarks/measure/find_acrobot_expert.py``."""
 
     def __init__(self, weights: dict[str, np.ndarray]):
         self.weights = weights

@@ -187,8 +187,8 @@ def test_cells_give_the_sample_standard_deviation_over_seeds():
 
 
 def test_run_labels_script_names_a_missing_runs_folder_and_writes_nothing(tmp_path):
-    """scripts/measure_run_labels.py: a --runs folder the --work folder lacks is named, not a traceback."""
-    script = Path(__file__).parent.parent / "scripts" / "measure_run_labels.py"
+    """benchmarks/measure/run_labels.py: a --runs folder the --work folder lacks is named, not a traceback."""
+    script = Path(__file__).parent.parent / "benchmarks" / "measure" / "run_labels.py"
     out = tmp_path / "out"
     args = [f"--work={tmp_path}", "--runs", "table1/maze10", f"--out={out}"]
     result = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
@@ -198,17 +198,17 @@ def test_run_labels_script_names_a_missing_runs_folder_and_writes_nothing(tmp_pa
 
 
 def test_goal_script_names_a_checkpoint_folder_without_config(tmp_path):
-    """scripts/measure_goal.py: a --checkpoint that is not a pretrained_model folder is named, not a traceback."""
-    script = Path(__file__).parent.parent / "scripts" / "measure_goal.py"
+    """benchmarks/measure/goal.py: a --checkpoint that is not a pretrained_model folder is named, not a traceback."""
+    script = Path(__file__).parent.parent / "benchmarks" / "measure" / "goal.py"
     result = subprocess.run([sys.executable, str(script), f"--checkpoint={tmp_path}"], capture_output=True, text=True)
     assert result.returncode == 2
     assert f"--checkpoint={tmp_path} holds no config.json" in result.stderr
 
 
 def test_mode_script_names_a_non_dataset_and_a_checkpoint_without_its_training_state(tmp_path):
-    """scripts/measure_mode.py: a --data folder without meta/info.json, and --weights=latest on a folder without
+    """benchmarks/measure/mode.py: a --data folder without meta/info.json, and --weights=latest on a folder without
     the training state, are named, not a traceback."""
-    script = Path(__file__).parent.parent / "scripts" / "measure_mode.py"
+    script = Path(__file__).parent.parent / "benchmarks" / "measure" / "mode.py"
     args = [f"--data={tmp_path}", "--checkpoints", str(tmp_path)]
     result = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
     assert result.returncode == 2

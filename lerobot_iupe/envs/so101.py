@@ -60,7 +60,8 @@ class SO101PickPlaceEnv(gym.Wrapper):
             )
         )
         # Every SO-101 env renders (the camera observation, or lerobot-eval's videos), so every one renders offscreen
-        # headless, without multisampling and shadows: 8x faster on a CPU (scripts/measure_render.py), legible at 64 px.
+        # headless, without multisampling and shadows: 8x faster on a CPU (benchmarks/measure/render.py), legible at
+        # 64 px.
         use_offscreen_gl()
         model = self.env.unwrapped._model
         model.vis.quality.offsamples = 0

@@ -13,7 +13,7 @@ from lerobot_iupe.policy.joint_fit import sources_of_dataset
 from lerobot_iupe.policy.joint_idm import max_lag, named_sources
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
-# Measured with scripts/measure_context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
+# Measured with benchmarks/measure/context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
 # agreement 0.977 → 0.993 and LunarLander's R² 0.853 → 0.882 (by effect 0.851 → 0.885); it cost Acrobot
 # 0.998 → 0.996 and SO-101's R² 0.981 → 0.973 and left CartPole at 1.000. k = 2 was no better on average.
 SUPERVISED_IDM_CONTEXT = 1

@@ -5,7 +5,7 @@
 # peak RSS. One run, same machine. Data (python - <<<… or the generator):
 #   write_arm_recording(<root>, 200, 500, seed=7000, cameras=False, body=HUMANOID, with_actions=…)
 # into outputs/arm-scale/h100k-labelled and outputs/arm-scale/h100k-state-only.
-#   OLD=/tmp/old-src bash scripts/measure_arm_scale.sh
+#   OLD=/tmp/old-src bash benchmarks/measure/arm_scale.sh
 set -u
 cd "$(git rev-parse --show-toplevel)"
 B=$PWD/.venv/bin

@@ -8,7 +8,7 @@ its R² per joint on 10 held-out episodes (``lerobot-iupe-relabel --dry_run=true
 recording (frames/s against plain decoding of the same videos by one single-threaded process, torchcodec — the
 decoder LeRobot picks here — and PyAV; peak memory).
 
-    python scripts/measure_cameras.py [--frames 2000 20000] [--steps 2000] [--work outputs/measure-cameras]
+    python benchmarks/measure/cameras.py [--frames 2000 20000] [--steps 2000] [--work outputs/measure-cameras]
 
 Writes the "real_cameras" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
 """
@@ -30,7 +30,8 @@ import numpy as np
 from lerobot_iupe.data.arm_recording import write_arm_recording
 
 sys.path.insert(0, str(Path(__file__).parent))
-from relabel_report import BIN, update  # noqa: E402
+from relabel_report import update  # noqa: E402
+from steps import BIN, command_line  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
 EPISODE_FRAMES = 250
@@ -152,7 +153,7 @@ def main() -> None:
     if args.decode:
         print(f"plain {args.backend} decode, one thread: {plain_decode_rate(args.decode, args.backend):.1f}")
         return
-    command = "python scripts/measure_cameras.py " + " ".join(sys.argv[1:])
+    command = command_line()
     # Its own frame cache, so that each size's first training run builds it (and is measured doing so).
     env = {"LEROBOT_IUPE_CACHE": str(args.work / "frame-cache")}
     held_out = recording(args.work, "arm-held-out", 10, HELD_OUT_SEED)

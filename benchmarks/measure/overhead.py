@@ -9,7 +9,7 @@ thread, in a fresh interpreter timed from outside (its start and imports include
 For BCO(α) and IUPE the plain figure adds the run's own IDM and rollout seconds to the plain BC loop: the work a
 plain loop of the same cycle could not skip.
 
-    python scripts/measure_overhead.py [--envs cartpole acrobot mountaincar] [--repeats 3]
+    python benchmarks/measure/overhead.py [--envs cartpole acrobot mountaincar] [--repeats 3]
 
 Writes benchmarks/overhead.json and benchmarks/overhead.md.
 """
@@ -123,7 +123,7 @@ def main() -> None:
     lines = [
         "# Wall-clock of a vector run against a plain torch loop",
         "",
-        f"`{' '.join(['python', 'scripts/measure_overhead.py', *sys.argv[1:]])}` (the package's runs by "
+        f"`{' '.join(['python', 'benchmarks/measure/overhead.py', *sys.argv[1:]])}` (the package's runs by "
         f"`{' '.join(benchmark)}`). How each side is timed: the script's docstring. Seconds, one thread each.",
         "",
         "| env | method | steps × batch | package run | LeRobot frame loading | lerobot-train start | IDM + rollouts "

@@ -5,9 +5,9 @@ episode), it also gives the expert's main-engine command there, the IDM's label 
 what the policy learns) and the policy mode's, each as a mean and the share above 0 (the engine fires at ≥ 50%
 power for any a > 0, and a lander that fires never comes to rest).
 
-    python scripts/measure_mode.py --data outputs/bench-r5/data/lunarlander-aa5adda054-expert-actions \
+    python benchmarks/measure/mode.py --data outputs/bench-r5/data/lunarlander-aa5adda054-expert-actions \
         --checkpoints outputs/bench-r5/runs/continuous/lunarlander/{bco,iupe}-s{0,2}/checkpoints/last/pretrained_model
-    python scripts/measure_mode.py --weights selected latest --data … --checkpoints …
+    python benchmarks/measure/mode.py --weights selected latest --data … --checkpoints …
 
 ``--data`` is an expert dataset with its true actions; every checkpoint reads its states through its own
 observation keys (its policy model with one observation per window, the mode of its Gaussian). ``--weights

@@ -4,7 +4,7 @@ The search runs on a batched numpy copy of gymnasium's Acrobot-v1 dynamics (one 
 equations) so that a whole population is simulated at once; the result is then checked on the real
 gymnasium environment and written to ``lerobot_iupe/assets/acrobot_expert.safetensors``.
 
-    python scripts/find_acrobot_expert.py --seed 0 --generations 40
+    python benchmarks/measure/find_acrobot_expert.py --seed 0 --generations 40
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--elite_frac", type=float, default=0.2)
     parser.add_argument(
-        "--output", type=Path, default=Path(__file__).parents[1] / "lerobot_iupe/assets/acrobot_expert.safetensors"
+        "--output", type=Path, default=Path(__file__).parents[2] / "lerobot_iupe/assets/acrobot_expert.safetensors"
     )
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)

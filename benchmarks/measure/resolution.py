@@ -1,10 +1,10 @@
 """The working resolution for 640×480 cameras (``--policy.resize_shape``), chosen by measurement: on the 2,000-frame
-SO-101-shaped recording of ``measure_cameras.py`` (run that first), a supervised IDM per resolution trained with
+SO-101-shaped recording of ``cameras.py`` (run that first), a supervised IDM per resolution trained with
 otherwise default flags; its R² per joint on the 10 held-out episodes, training steps/s and relabelling frames/s
 (torchcodec, the decoder LeRobot picks here). With ``--cameras_only`` the IDM reads the two cameras alone: the
 arm's state tells its own motion, so only then does the picture decide the labels.
 
-    python scripts/measure_resolution.py [--shapes 48x64 96x128 144x192] [--steps 500] [--cameras_only]
+    python benchmarks/measure/resolution.py [--shapes 48x64 96x128 144x192] [--steps 500] [--cameras_only]
 
 Writes the "resolution" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
 """
@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from measure_cameras import CHECKPOINT, measured  # noqa: E402
-from relabel_report import BIN, update  # noqa: E402
+from cameras import CHECKPOINT, measured  # noqa: E402
+from relabel_report import update  # noqa: E402
+from steps import BIN, command_line  # noqa: E402
 
 from lerobot_iupe.data.arm_recording import CAMERAS  # noqa: E402
 
@@ -35,10 +36,10 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("outputs/measure-cameras"))
     parser.add_argument("--out", type=Path, default=Path("benchmarks"))
     args = parser.parse_args()
-    command = "python scripts/measure_resolution.py " + " ".join(sys.argv[1:])
+    command = command_line()
     root, held_out = args.work / "arm-2000", args.work / "arm-held-out"
     if not (root / "meta" / "info.json").exists():
-        raise SystemExit(f"{root} is missing: run python scripts/measure_cameras.py --frames 2000 first")
+        raise SystemExit(f"{root} is missing: run python benchmarks/measure/cameras.py --frames 2000 first")
     env = {"LEROBOT_IUPE_CACHE": str(args.work / "frame-cache")}
     rows = []
     for shape in args.shapes:

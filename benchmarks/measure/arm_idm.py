@@ -9,7 +9,7 @@ the best copy a_t ≈ s_{t+k}. ``--variant plain`` trains the IDM the paper's en
 The recordings carry no camera (``--no_cameras``): the arm IDM reads observation.state alone, and LeRobot's loader
 would decode every camera frame of every batch for nothing.
 
-    python scripts/measure_arm_idm.py [--bodies so101 …] [--delays 2 4 6] [--labelled 2 10] [--steps 3000]
+    python benchmarks/measure/arm_idm.py [--bodies so101 …] [--delays 2 4 6] [--labelled 2 10] [--steps 3000]
         [--variant joint|plain]
 """
 
@@ -17,15 +17,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 from lerobot_iupe.data.arm_recording import BODIES, HUMANOID_LEFT_ARM, ArmDynamics, write_arm_recording
-from lerobot_iupe.relabel.config import CheckpointRef, RelabelConfig, RelabelDataset
-from lerobot_iupe.relabel.run import relabel
 
-BIN = Path(sys.executable).parent
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import dry_run, train_once  # noqa: E402
+
 FRAMES = 300  # 10 s at 30 fps, as the real recording's episodes (373 frames on average)
 HELD_OUT = 10
 
@@ -40,22 +39,9 @@ def recording(root: Path, episodes: int, seed: int, delay: int, body: str = "so1
 
 
 def train(root: Path, out: Path, steps: int, variant: str) -> Path:
-    checkpoint = out / "checkpoints" / "last" / "pretrained_model"
-    if checkpoint.exists():
-        return checkpoint
     extra = ["--policy.joint_state_columns=[]"] if variant == "plain" else []
-    command = [
-        str(BIN / "lerobot-train"), "--policy.type=iupe", "--policy.supervised=true",
-        f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", f"--steps={steps}", "--batch_size=64",
-        f"--save_freq={steps}", "--num_workers=0",
-        "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false", f"--output_dir={out}",
-        "--log_freq=1000", *extra,
-    ]  # fmt: skip
-    result = subprocess.run(command, capture_output=True, text=True)
-    (out.parent / f"{out.name}.log").write_text(result.stdout + result.stderr)
-    if result.returncode:
-        raise SystemExit(f"training failed ({out.parent / f'{out.name}.log'}):\n{result.stderr[-2000:]}")
-    return checkpoint
+    flags = ["--policy.type=iupe", "--policy.supervised=true", "--batch_size=64", "--log_freq=1000", *extra]
+    return train_once(root, out, *flags, steps=steps, threads=None)
 
 
 def main() -> None:
@@ -76,11 +62,7 @@ def main() -> None:
             checkpoint = train(
                 train_root, args.work / f"run-{tag}-n{labelled}-{args.variant}", args.steps, args.variant
             )
-            report = relabel(RelabelConfig(
-                policy=CheckpointRef(path=str(checkpoint)),
-                dataset=RelabelDataset(repo_id=f"local/{held_out.name}", root=str(held_out), video_backend="pyav"),
-                dry_run=True,
-            ))  # fmt: skip
+            report = dry_run(checkpoint, held_out)
             config = json.loads((checkpoint / "config.json").read_text())
             refs = report.references or {}
             rows.append({"body": body, "delay": delay, "labelled": labelled, "variant": args.variant,

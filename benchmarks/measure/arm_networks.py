@@ -2,10 +2,10 @@
 a ridge regression on the residual a_t − s_{t+lag} over the window t−1 … t+lag+2, then an MLP trained 3,000 steps
 (batch 64, Adam 1e-3) on what it leaves: over every joint's window at once, or one per joint over its own window;
 beside them the simplest network, a plain MLP from the same window to a_t with no ridge.
-R² per joint on 10 held-out episodes. A quick look at extrapolation, not the package's model (scripts/
-measure_arm_idm.py measures that).
+R² per joint on 10 held-out episodes. A quick look at extrapolation, not the package's model
+(benchmarks/measure/arm_idm.py measures that).
 
-    python scripts/measure_arm_networks.py [--delays 2 6] [--labelled 2 10]
+    python benchmarks/measure/arm_networks.py [--delays 2 6] [--labelled 2 10]
 """
 
 from __future__ import annotations

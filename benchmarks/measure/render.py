@@ -2,7 +2,7 @@
 quality (8x multisampling, 4096-px shadow maps, shadows on) and with the package's (none of them), the scripted
 expert acting.
 
-    python scripts/measure_render.py [--size 64] [--steps 100]
+    python benchmarks/measure/render.py [--size 64] [--steps 100]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Label accuracy of the IDMs of full IUPE runs against the true actions. Writes the "accuracy" section of
-benchmarks/relabel.json and renders benchmarks/relabel.md (throughput: scripts/measure_throughput.py).
+benchmarks/relabel.json and renders benchmarks/relabel.md (throughput: benchmarks/measure/throughput.py).
 
-    python scripts/measure_relabel.py [--envs cartpole mountaincar acrobot maze5]
+    python benchmarks/measure/relabel.py [--envs cartpole mountaincar acrobot maze5]
 Each checkpoint is trained here, exactly as the benchmark's Table 1 IUPE seed-0 run (its preset, datasets and
 budget), with today's code. Expert data for the accuracy check is collected with the preset's env settings on
 seeds 700000… (never used in training), with its actions, then stripped of them with LeRobot's `remove_feature`,
@@ -23,8 +23,9 @@ from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
 
 BIN = Path(sys.executable).parent
 sys.path.insert(0, str(Path(__file__).parent))
-from measure_run_labels import actions_with_successor  # noqa: E402
 from relabel_report import render, update  # noqa: E402
+from run_labels import actions_with_successor  # noqa: E402
+from steps import command_line  # noqa: E402
 
 ENVS = ["cartpole", "mountaincar", "acrobot", "maze5"]
 
@@ -83,7 +84,7 @@ def main() -> None:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     accuracies = [accuracy(env, work, args.episodes) for env in args.envs]
-    command = " ".join(["python", "scripts/measure_relabel.py", *sys.argv[1:]])
+    command = command_line()
     update(Path(args.out), "accuracy", accuracies, command, key=("env",))
     print(render(Path(args.out)))
 

@@ -5,7 +5,7 @@ episodes; the IDM reads both, fused). The IDMs are `--policy.supervised=true` ch
 sizes (a few steps: speed does not depend on the weights). Dry runs (labelling, gathering, no writing), PyAV
 decoding.
 
-    python scripts/measure_throughput.py [--datasets cartpole maze5 so101_camera]
+    python benchmarks/measure/throughput.py [--datasets cartpole maze5 so101_camera]
 
 Writes the "throughput" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
 """
@@ -24,7 +24,8 @@ from lerobot_iupe.data.episodes import episode_spans
 from lerobot_iupe.data.video import CameraFrames
 
 sys.path.insert(0, str(Path(__file__).parent))
-from relabel_report import BIN, render, run, update  # noqa: E402
+from relabel_report import render, update  # noqa: E402
+from steps import BIN, command_line, run  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
 
@@ -109,7 +110,7 @@ def main() -> None:
                 }
             )
             print(rows[-1], flush=True)
-    command = " ".join(["python", "scripts/measure_throughput.py", *sys.argv[1:]])
+    command = command_line()
     update(Path(args.out), "throughput", rows, command, key=("dataset", "processes"))
     print(render(Path(args.out)))
 

@@ -2,12 +2,12 @@
 observation to the next 10 actions, L1 loss, batch 64, Adam 1e-3) trained on LunarLander datasets that differ only
 in their actions, played open loop (all 10 actions) and re-planned every step (the first), 3 seeds each. Minutes per
 candidate on one core, where LeRobot's ACT takes half an hour: it ranks candidates, and ACT confirms the winner
-(`scripts/measure_downstream.py`).
+(`benchmarks/measure/downstream.py`).
 
-    python scripts/measure_chunk_labels.py --work outputs/dl48
+    python benchmarks/measure/chunk_labels.py --work outputs/dl48
 
 Candidates, all on the frames of `<work>/lunarlander-true` (its first 10 episodes are the IDM's labelled ones):
-true actions; the IDM's labels (`lunarlander-idm-k1`, made by `measure_downstream.py --arms`); those labels
+true actions; the IDM's labels (`lunarlander-idm-k1`, made by `downstream.py --arms`); those labels
 pulled toward the observation by 1 std (`lunarlander-idm-k1-pull1`, `--pull_to_observation 1`); the same regression
 without a limit (every label replaced by it); a centred moving average over 3 frames; and two controls at the size of
 the IDM's error per dimension: the true actions plus independent noise, and plus a drifting noise (AR(1), 0.8 a
@@ -30,6 +30,9 @@ from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.envs.lunar import LunarLanderEnv
 from lerobot_iupe.relabel.consistency import observation_regression
 from lerobot_iupe.relabel.references import per_dimension_r2
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line  # noqa: E402
 
 CHUNK, STEPS, EVAL_SEED = 10, 3000, 500_000
 
@@ -160,7 +163,7 @@ def main() -> None:
         old = next((r for r in previous(args.out) if r["labels"] == name), {})
         rows.append({**old, **row})
         print(json.dumps(row), flush=True)
-    write(args.out, rows, " ".join(["python", "scripts/measure_chunk_labels.py", *sys.argv[1:]]))
+    write(args.out, rows, command_line())
 
 
 def previous(out: Path) -> list[dict]:
@@ -181,7 +184,7 @@ def write(out: Path, rows: list[dict], command: str) -> None:
     lines = [
         "# Label candidates for chunked policies: a quick screen",
         "",
-        f"{', '.join(f'`{c}`' for c in commands)} (scripts/measure_chunk_labels.py says what each candidate is). "
+        f"{', '.join(f'`{c}`' for c in commands)} (benchmarks/measure/chunk_labels.py says what each candidate is). "
         "The simplest chunked learner, a 2×256 MLP from LunarLander's observation to its next 10 actions (L1, "
         "3,000 steps of 64), trained on the same 50 expert episodes with different actions; success = safe "
         "landings on 30 episodes from seed 500000, per training seed. R² on the 40 episodes the IDM did not train "

@@ -4,7 +4,7 @@
 # (two 640×480 AV1 cameras, LeRobot's writer), trains a supervised IDM at the default working resolution with
 # --policy.device=cuda, scores it on held-out episodes and relabels with the IDM on the GPU, against a plain
 # one-thread PyAV decode of the same videos. Logs go to $OUT (default outputs/device-check).
-#   bash scripts/device_check.sh [frames] [steps]     (DEVICE=cpu HELD=1 for a dry run on a CPU machine)
+#   bash benchmarks/measure/device_check.sh [frames] [steps]     (DEVICE=cpu HELD=1 for a dry run on a CPU machine)
 set -euo pipefail
 FRAMES=${1:-2000}
 STEPS=${2:-1000}
@@ -47,4 +47,4 @@ timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device
   --dataset.root="$WORK/held" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "frame/s]" | tee "$OUT/held_out.txt"
 timed "$(command -v lerobot-iupe-relabel)" --policy.path="$CKPT" --policy.device="$DEVICE" --dataset.repo_id=local/arm \
   --dataset.root="$WORK/arm" --dataset.video_backend=pyav --dry_run=true 2>&1 | grep -v "frame/s]" | tee "$OUT/relabel.txt"
-python3 scripts/measure_cameras.py --decode "$WORK/arm" --backend pyav | tee "$OUT/decode.txt"
+python3 benchmarks/measure/cameras.py --decode "$WORK/arm" --backend pyav | tee "$OUT/decode.txt"

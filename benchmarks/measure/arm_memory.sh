@@ -2,7 +2,7 @@
 # One run, same machine: relabel (dry run) and train, the paper's IDM vs the arm IDM, at 3,000 and 30,000 frames.
 set -u
 cd "$(git rev-parse --show-toplevel)"
-# Needs outputs/measure-arm-idm (python scripts/measure_arm_idm.py, and --delays 4 --labelled 10 --variant plain) and
+# Needs outputs/measure-arm-idm (python benchmarks/measure/arm_idm.py, and --delays 4 --labelled 10 --variant plain) and
 # outputs/arm-mem/j3k, j30k (make_arm_recording.py --no_cameras --delay 4 --seed 500, 10 and 100 episodes of 300).
 B=.venv/bin
 OUT=${OUT:-outputs/arm-mem}

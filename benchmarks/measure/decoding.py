@@ -1,6 +1,6 @@
 """Decode rate of the package's video frames with PyAV and with torchcodec (which needs a system FFmpeg).
 
-    python scripts/measure_decoding.py [--episodes 50] [--image_size 64] [--repeats 3]
+    python benchmarks/measure/decoding.py [--episodes 50] [--image_size 64] [--repeats 3]
 Collects a Maze 5×5 expert dataset stored as MP4 (outputs/measure-decoding/, once), then decodes every frame in
 the spans the relabeller and the frame cache read (``data.video.CameraFrames``), alternating the two backends.
 """

@@ -8,7 +8,7 @@ env's 300-step cap. `--ema_decay=d` trains with the policy model's weight averag
 seen from the end effector (`--env.relative_positions=true`, its own expert dataset of the same seeds); the rows
 of other settings already in history.json are kept.
 
-    python scripts/measure_history.py [--ns 1 4] [--seeds 0 1 2] [--jobs 2] [--ema_decay 0.995] [--steps 3000]
+    python benchmarks/measure/history.py [--ns 1 4] [--seeds 0 1 2] [--jobs 2] [--ema_decay 0.995] [--steps 3000]
         [--hidden_dim 64] [--binary_action_dims 3] [--relative_positions]
 
 Writes benchmarks/history.json and benchmarks/history.md.
@@ -18,17 +18,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-from relabel_report import write_page
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line, train_once, write_page  # noqa: E402
 
 from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
-from lerobot_iupe.benchmark.runner import CHECKPOINT, run_cli
+from lerobot_iupe.benchmark.runner import run_cli
 from lerobot_iupe.envs.configs import env_cli_flags, env_config_from_settings
 
 ENV = {"type": "so101_pickplace"}
@@ -59,18 +60,12 @@ def run_name(seed: int, setting: Setting) -> str:
 
 def train(data: Path, out: Path, seed: int, setting: Setting) -> Path:
     n, ema_decay, steps, hidden, binary, _ = setting
-    if not (out / CHECKPOINT).exists():
-        shutil.rmtree(out, ignore_errors=True)
-        run_cli(
-            "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--policy.n_obs_steps={n}",
-            f"--dataset.repo_id=local/{data.name}", f"--dataset.root={data}", f"--output_dir={out}",
-            f"--steps={steps}", f"--save_freq={steps}", f"--batch_size={BATCH}", "--num_workers=0",
-            "--policy.device=cpu", "--wandb.enable=false", f"--seed={seed}", "--log_freq=500",
-            f"--policy.ema_decay={ema_decay}", f"--policy.hidden_dim={hidden}",
-            f"--policy.binary_action_dims=[{','.join(map(str, binary))}]",
-            log=out.parent / f"{out.name}.log", quiet=True, threads=1,
-        )  # fmt: skip
-    return out / CHECKPOINT
+    flags = [
+        "--policy.type=iupe", "--policy.supervised=true", f"--policy.n_obs_steps={n}", f"--batch_size={BATCH}",
+        f"--seed={seed}", "--log_freq=500", f"--policy.ema_decay={ema_decay}", f"--policy.hidden_dim={hidden}",
+        f"--policy.binary_action_dims=[{','.join(map(str, binary))}]",
+    ]  # fmt: skip
+    return train_once(data, out, *flags, steps=steps)
 
 
 def setting(row: dict) -> Setting:
@@ -127,7 +122,7 @@ def main() -> None:
         rows.append({**fields, "binary_action_dims": list(run_setting.binary_action_dims), "seed": seed,
                      "success": success})  # fmt: skip
         print(rows[-1], flush=True)
-    command = " ".join(["python", "scripts/measure_history.py", *sys.argv[1:]])
+    command = command_line()
     commands = {}
     if (out / "history.json").exists():  # rows of other settings stay, with their own command
         before = json.loads((out / "history.json").read_text())

@@ -10,7 +10,7 @@ put first on PYTHONPATH) and this tree, on the same data.
   with as many processes (each decoding a contiguous share of every video whole, full size, one thread), and peak
   memory (``/usr/bin/time``).
 
-    python scripts/measure_speed.py [--frames 2000] [--baseline d03e093] [--steps 300] [--work outputs/speed]
+    python benchmarks/measure/speed.py [--frames 2000] [--baseline d03e093] [--steps 300] [--work outputs/speed]
 
 Writes benchmarks/speed.json and benchmarks/speed.md.
 """
@@ -28,8 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line  # noqa: E402
+
 BIN = Path(sys.executable).parent
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 CHECKPOINT = "checkpoints/last/pretrained_model"
 EPISODE_FRAMES = 250
 
@@ -156,7 +159,7 @@ def main() -> None:
         frames = plain_decode(args.decode, args.backend, args.share, args.shares)
         print(frames, time.perf_counter() - start)
         return
-    command = "python scripts/measure_speed.py " + " ".join(sys.argv[1:])
+    command = command_line()
     work = args.work.resolve()
     cache = work / "frame-cache"
     before, after = code_env(worktree(work, args.baseline), cache), code_env(None, cache)
@@ -239,7 +242,7 @@ def commands_of(results: dict, section: str) -> str:
 
 def render(results: dict, page: Path) -> None:
     lines = ["# Speed at real size", "", "Every ratio is measured in one run of the script on one machine, the "
-             "baseline revision's code beside this tree's, on the same data. Written by `scripts/measure_speed.py`.",
+             "baseline revision's code beside this tree's, on the same data. Written by `benchmarks/measure/speed.py`.",
              ""]  # fmt: skip
     if "train" in results:
         lines += ["## Training (lerobot-train, default flags, batch 8)", "", commands_of(results, "train"), "",

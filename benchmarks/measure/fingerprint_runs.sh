@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # Fingerprints of short seeded runs, to prove a refactor changes no behaviour: run it before and after, compare.
-#   scripts/fingerprint_runs.sh before   # ... change the code ...   scripts/fingerprint_runs.sh after
+#   benchmarks/measure/fingerprint_runs.sh before   # ... change the code ...   benchmarks/measure/fingerprint_runs.sh after
 # Prints, per run, the SHA-256 prefix of model.safetensors; cycle records (timings aside) are compared by diffing
 # outputs/fingerprints/<tag>/<run>/checkpoints/last/pretrained_model/iupe_cycles.jsonl without the *_s fields.
 # Runs: CartPole IUPE, BCO(α), BC (200 steps) and Maze 3×3 IUPE (60 steps), one CPU thread, --seed=3.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-tag=${1:?usage: scripts/fingerprint_runs.sh TAG}
+tag=${1:?usage: benchmarks/measure/fingerprint_runs.sh TAG}
 bin=.venv/bin
 data=outputs/fingerprints/data
 out=outputs/fingerprints/$tag

@@ -1,8 +1,8 @@
 """The simplest loop beside the package's camera IDM: a plain torch MLP on the joint state alone, (s_t, s_{t+1})
-→ a_t, trained on the same 2,000-frame SO-101-shaped recording as ``measure_cameras.py`` (same steps and batch as
+→ a_t, trained on the same 2,000-frame SO-101-shaped recording as ``cameras.py`` (same steps and batch as
 its IDM) and scored by R² per joint on the same 10 held-out episodes.
 
-    python scripts/measure_plain_idm.py [--work outputs/measure-cameras] [--steps 1500] [--batch_size 8]
+    python benchmarks/measure/plain_idm.py [--work outputs/measure-cameras] [--steps 1500] [--batch_size 8]
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ episodes (seeds 700000…, collected with actions, stripped with LeRobot's `remo
 per action dimension (R²) against the true actions. Each IDM reads either the whole observation (the arm's state,
 the block and the goal) or the arm's state only (`--policy.idm_observation_keys=[observation.state]`).
 
-    python scripts/measure_play.py [--episodes 30] [--expert_episodes 20]
+    python benchmarks/measure/play.py [--episodes 30] [--expert_episodes 20]
 
 Writes benchmarks/pre_demos.json and benchmarks/pre_demos.md.
 """
@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
-from relabel_report import write_page
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line, write_page  # noqa: E402
 
 from lerobot_iupe.benchmark.runner import CHECKPOINT, run_cli
 from lerobot_iupe.data.readers import action_array, column_array
@@ -89,7 +91,7 @@ def main() -> None:
             r2 = per_dimension_r2(inner_actions(stripped), true)
             rows.append({"agent": agent, "idm_reads": reads, "frames": frames, "r2": r2})
             print(rows[-1], flush=True)
-    command = " ".join(["python", "scripts/measure_play.py", *sys.argv[1:]])
+    command = command_line()
     table = [
         "| pre-demonstrations | IDM reads | frames | " + " | ".join(f"R² {n}" for n in NAMES) + " | mean |",
         "|---|---|---|" + "---|" * (len(NAMES) + 1),

@@ -1,7 +1,7 @@
 """How often a checkpoint reaches the goal the IUPE cycle checks (``info["goal_reached"]`` at some step) against the
 success LeRobot's evaluation counts (``info["is_success"]``), under both evaluation rules.
 
-    python scripts/measure_goal.py --checkpoint outputs/runs/iupe-s0/checkpoints/last/pretrained_model
+    python benchmarks/measure/goal.py --checkpoint outputs/runs/iupe-s0/checkpoints/last/pretrained_model
 
 Plays ``--episodes`` episodes on seeds ``--seed`` … in the env the checkpoint records, by the policy's mode
 (``argmax``) and by one draw per step (``sample``), and prints one line per rule.

@@ -3,7 +3,7 @@ never saw): how often the latent policy's choice argmax π(z|s) is the latent ac
 step, how often the remapping maps (s, z*) to the expert's action, and how often the composed policy
 (argmax π, then the remapping) acts as the expert did.
 
-    python scripts/measure_ilpo_actions.py --work outputs/benchmark --env acrobot --methods ilpo ilpo_norm
+    python benchmarks/measure/ilpo_actions.py --work outputs/benchmark --env acrobot --methods ilpo ilpo_norm
 """
 
 import argparse

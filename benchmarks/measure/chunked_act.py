@@ -2,12 +2,12 @@
 labels, labels pulled toward the observation), played as LeRobot users play it, evaluated by LeRobot's evaluation
 loop on seeds the data never used. Runs several trainings at once (for a machine with many cores and a GPU).
 
-    python scripts/measure_chunked_act.py --datasets true=outputs/dl48/lunarlander-true \\
+    python benchmarks/measure/chunked_act.py --datasets true=outputs/dl48/lunarlander-true \\
         idm=outputs/dl48/lunarlander-idm-k1 pull1=outputs/dl48/lunarlander-idm-k1-pull1 \\
         --act replan chunk10 --seeds 0 1 2 --device cuda --jobs 5 --loader_workers 2 --out results.jsonl
 
 Each finished run appends one JSON line to --out (labels, act, seed, steps, success_rate, avg_sum_reward, train_s), so
-a run cut short keeps what finished. The ACT flags are those of `scripts/measure_downstream.py`.
+a run cut short keeps what finished. The ACT flags are those of `benchmarks/measure/downstream.py`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from measure_downstream import ACT_FLAGS, ACT_SETTINGS, CHECKPOINT, ENV_SETTINGS  # noqa: E402
+from downstream import ACT_FLAGS, ACT_SETTINGS, CHECKPOINT, ENV_SETTINGS  # noqa: E402
 
 STEPS = {"replan": 3000, "chunk10": 1500, "fit_step": 3000}
 

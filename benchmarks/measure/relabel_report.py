@@ -1,39 +1,13 @@
 """benchmarks/relabel.json and its rendering benchmarks/relabel.md, shared by the relabelling measurements
-(measure_relabel.py, measure_downstream.py, measure_context.py): each writes its own sections and the command that
+(relabel.py, downstream.py, context.py): each writes its own sections and the command that
 produced them, and the page is rendered from the whole file."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
-
-BIN = Path(sys.executable).parent
-
-
-def run(*args: str, threads: int | None = None) -> str:
-    """Run an installed console script (``threads``: its OMP_NUM_THREADS); print its tail and stop on failure."""
-    print("$", " ".join(args), flush=True)
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads)} if threads else None
-    result = subprocess.run([str(BIN / args[0]), *args[1:]], capture_output=True, text=True, env=env)
-    if result.returncode:
-        print(result.stdout[-3000:], result.stderr[-3000:])
-        raise SystemExit(f"{args[0]} failed ({result.returncode})")
-    return result.stdout
-
-
-def write_page(out: Path, stem: str, command: str, rows: list[dict], title: str, intro: str, table: list[str]) -> None:
-    """A measurement's ``<stem>.json`` (its command and rows) and ``<stem>.md`` (title, command, what it measured,
-    a table) in ``out``; the page is printed too."""
-    (out / f"{stem}.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
-    lines = [f"# {title}", "", f"`{command}`: {intro}", "", *table]
-    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-
 
 MEASURABLE = 0.1  # (a)'s success rate below which the ratio (b) / (a) says nothing
 
@@ -125,7 +99,7 @@ def _real_cameras(data: dict) -> list[str]:
 def render(out: Path) -> str:
     data = load(out)
     lines = ["# lerobot-iupe-relabel: measured", "", "On a 2-core CPU, no GPU. Every section names its command.", ""]
-    if data.get("arm_idm_markdown"):  # written by measure_arm_idm.py's runs and kept as text
+    if data.get("arm_idm_markdown"):  # written by arm_idm.py's runs and kept as text
         lines += [data["arm_idm_markdown"], ""]
     if data.get("real_cameras"):
         lines += _real_cameras(data)

@@ -2,7 +2,7 @@
 true actions and (b) the same dataset stripped of its actions and relabelled by an IDM trained on 20% of its
 episodes (`--policy.supervised=true`), both evaluated by LeRobot's evaluation loop; 3 seeds per arm.
 
-    python scripts/measure_downstream.py [--envs lunarlander so101_pickplace so101_camera so101_relative]
+    python benchmarks/measure/downstream.py [--envs lunarlander so101_pickplace so101_camera so101_relative]
         [--seeds 0 1 2]
 
 so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both;
@@ -34,7 +34,8 @@ from lerobot_iupe.envs.configs import env_cli_flags, env_config_from_settings
 from lerobot_iupe.policy.algorithm import r_squared
 
 sys.path.insert(0, str(Path(__file__).parent))
-from relabel_report import render, run, update  # noqa: E402
+from relabel_report import render, update  # noqa: E402
+from steps import command_line, parse_with_folders, run, train_once  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
 ENVS = {  # name -> (expert episodes, IDM steps, ACT steps)
@@ -71,17 +72,11 @@ ACT_SETTINGS = {
     "fit_step": ["--policy.chunk_size=1", "--policy.n_action_steps=1", *FIT],
 }
 DEFAULT_ACT = "chunk10"
-COMMON = ["--num_workers=0", "--policy.device=cpu", "--env_eval_freq=0", "--wandb.enable=false", "--log_freq=500"]
+COMMON = ["--env_eval_freq=0", "--log_freq=500"]  # beside steps.TRAIN_FLAGS
 
 
 def train(dataset: Path, out: Path, steps: int, seed: int, flags: list[str]) -> Path:
-    if not (out / CHECKPOINT).exists():
-        shutil.rmtree(out, ignore_errors=True)
-        run(
-            "lerobot-train", *flags, *COMMON, f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
-            f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}", f"--seed={seed}", threads=1,
-        )  # fmt: skip
-    return out / CHECKPOINT
+    return train_once(dataset, out, *flags, *COMMON, f"--seed={seed}", steps=steps)
 
 
 def training_fit(checkpoint: Path, dataset: Path, every: int = 3) -> list[float]:
@@ -241,12 +236,8 @@ def main() -> None:
     parser.add_argument(
         "--pull_to_observation", type=float, default=0.0, help="lerobot-iupe-relabel's --pull_to_observation"
     )
-    parser.add_argument("--work", default="outputs/measure-downstream")
-    parser.add_argument("--out", default="benchmarks")
-    args = parser.parse_args()
-    work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
-    command = " ".join(["python", "scripts/measure_downstream.py", *sys.argv[1:]])
+    args = parse_with_folders(parser, "outputs/measure-downstream")
+    work, command = Path(args.work), command_line()
     for env in args.envs:
         rows, quality = measure(
             env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms, args.idm_keys,

@@ -4,7 +4,7 @@
 them (LeRobot's `remove_feature`); the labels are scored against the true actions on every frame with a successor:
 agreement for discrete actions, R² (and, for LunarLander, R² of the engine effects) for continuous ones.
 
-    python scripts/measure_context.py [--envs cartpole acrobot ...] [--ks 0 1 2]
+    python benchmarks/measure/context.py [--envs cartpole acrobot ...] [--ks 0 1 2]
 
 Writes the "context" section of benchmarks/relabel.json and renders benchmarks/relabel.md.
 """
@@ -24,11 +24,11 @@ from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.policy.algorithm import r_squared
 
 sys.path.insert(0, str(Path(__file__).parent))
-from measure_downstream import lunar_effect  # noqa: E402
-from relabel_report import render, run, update  # noqa: E402
+from downstream import lunar_effect  # noqa: E402
+from relabel_report import render, update  # noqa: E402
+from steps import CHECKPOINT, command_line, parse_with_folders, run, train_once  # noqa: E402
 
 ENVS = {"cartpole": 1500, "mountaincar": 1500, "acrobot": 1500, "lunarlander": 2000, "so101_pickplace": 2000}
-CHECKPOINT = "checkpoints/last/pretrained_model"
 
 
 def collect(env: str, root: Path, episodes: int, seed: int) -> None:
@@ -50,15 +50,8 @@ def measure(env: str, k: int, work: Path) -> dict:
     collect(env, labelled, 10, 1000)
     collect(env, truth, 50, 700000)
     out = work / f"{env}-k{k}"
-    if not (out / CHECKPOINT).exists():
-        shutil.rmtree(out, ignore_errors=True)
-        steps = ENVS[env]
-        run(
-            "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--policy.idm_context={k}",
-            f"--dataset.repo_id=local/{labelled.name}", f"--dataset.root={labelled}", f"--output_dir={out}",
-            f"--steps={steps}", f"--save_freq={steps}", "--batch_size=64", "--num_workers=0", "--policy.device=cpu",
-            "--wandb.enable=false", "--seed=0", "--log_freq=500",
-        )  # fmt: skip
+    flags = ["--policy.type=iupe", "--policy.supervised=true", f"--policy.idm_context={k}", "--batch_size=64"]
+    train_once(labelled, out, *flags, "--seed=0", "--log_freq=500", steps=ENVS[env], threads=None)
     stripped = work / f"{env}-k{k}-relabelled"
     shutil.rmtree(stripped, ignore_errors=True)
     source = LeRobotDataset(f"local/{truth.name}", root=truth, video_backend="pyav")
@@ -85,12 +78,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--envs", nargs="+", default=list(ENVS), choices=list(ENVS))
     parser.add_argument("--ks", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--work", default="outputs/measure-context")
-    parser.add_argument("--out", default="benchmarks")
-    args = parser.parse_args()
-    work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
-    command = " ".join(["python", "scripts/measure_context.py", *sys.argv[1:]])
+    args = parse_with_folders(parser, "outputs/measure-context")
+    work, command = Path(args.work), command_line()
     for env in args.envs:
         rows = [measure(env, k, work) for k in args.ks]
         update(Path(args.out), "context", rows, command, key=("env", "k"))

@@ -2,9 +2,9 @@
 ``--num_workers=0`` so that loading runs in the profiled process) and of ``lerobot-iupe-relabel --num_workers=0``
 (decoding and labelling in one process), each with the code of a baseline revision and of this tree.
 
-    python scripts/profile_speed.py [--frames 2000] [--baseline d03e093] [--steps 60] [--work outputs/speed]
+    python benchmarks/measure/profile_speed.py [--frames 2000] [--baseline d03e093] [--steps 60] [--work outputs/speed]
 
-Needs the recording and worktree of ``scripts/measure_speed.py`` (made if missing). Writes benchmarks/profiles.md:
+Needs the recording and worktree of ``benchmarks/measure/speed.py`` (made if missing). Writes benchmarks/profiles.md:
 per run, the seconds in the calls that dominate (cumulative) and the top functions by own time.
 """
 
@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from measure_speed import BIN, CHECKPOINT, REPO, code_env, worktree  # noqa: E402
+from speed import BIN, CHECKPOINT, REPO, code_env, worktree  # noqa: E402
+from steps import command_line  # noqa: E402
 
 # The calls a step or a relabel spends its time in, by the function's name (file:function).
 PHASES = {
@@ -75,8 +76,8 @@ def main() -> None:
     cache = work / "frame-cache"
     root = work / f"arm-{args.frames}"
     if not (root / "meta" / "info.json").exists():
-        raise SystemExit(f"{root} is missing: run python scripts/measure_speed.py --frames {args.frames} first")
-    command = "python scripts/profile_speed.py " + " ".join(sys.argv[1:])
+        raise SystemExit(f"{root} is missing: run python benchmarks/measure/speed.py --frames {args.frames} first")
+    command = command_line()
     lines = ["# Profiles", "", f"`{command}`. cProfile, one process, this machine; cumulative seconds include "
              "the calls below them.", ""]  # fmt: skip
     for name, code in (("before", worktree(work, args.baseline)), ("after", None)):

@@ -3,7 +3,7 @@ the run's own expert dataset (by `lerobot-iupe-relabel`, argmax) and is compared
 benchmark kept beside it (`<data>-actions`), on every frame with a successor: accuracy for discrete actions, R²
 per dimension (and their mean) for continuous ones.
 
-    python scripts/measure_run_labels.py --work outputs/bench-r3 --runs table1/maze10 ablation/maze10
+    python benchmarks/measure/run_labels.py --work outputs/bench-r3 --runs table1/maze10 ablation/maze10
 Adds its rows to <out>/run_labels.json (replacing those of the same runs) and prints a table per method (mean ±
 std over seeds, ddof = 1). BC runs (trained on the true actions, no IDM) are skipped.
 """
@@ -23,6 +23,9 @@ from lerobot.datasets import LeRobotDataset
 from lerobot_iupe.benchmark import CHECKPOINT
 from lerobot_iupe.data.readers import action_array, column_array
 from lerobot_iupe.policy.algorithm import r_squared
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line  # noqa: E402
 
 BIN = Path(sys.executable).parent
 
@@ -100,7 +103,7 @@ def main() -> None:
     for run in runs:
         rows.append(score_run(run))
         print(json.dumps(rows[-1]), flush=True)
-    command = " ".join(["python", "scripts/measure_run_labels.py", *sys.argv[1:]])
+    command = command_line()
     save(Path(args.out) / "run_labels.json", command, rows)
     by_method: dict[str, list[float]] = {}
     for row in rows:
