@@ -180,6 +180,11 @@ def test_the_generated_bodies_differ_from_the_so101_as_real_recordings_do():
     assert states[:, roll].std() < 0.2 * actions[:, roll].std()  # and the follower barely follows
     states, actions = teleoperated_episode(300, rng, body=HUMANOID, idle=HUMANOID_LEFT_ARM)
     assert states.shape == actions.shape == (300, 26) and np.abs(actions).max() < 3.0  # radians
+    # An arm moved by hand (kinesthetic teaching): no delay, no lag, no sag, exact readings, so a_t = s_{t+1}.
+    hand = ArmDynamics(delay=0, response=1.0, dead_band=0.0, gravity=(0.0, 0.0), grasp_probability=0.0,
+                       quantise=False, reading_noise=0.0)  # fmt: skip
+    states, actions = teleoperated_episode(100, rng, hand)
+    np.testing.assert_allclose(states[1:], actions[:-1], atol=1e-4)
 
 
 @pytest.fixture(scope="session")

@@ -295,7 +295,7 @@ def teleoperated_episode(
         error = command + gravity_offset(q, dynamics.gravity) - q if body.gravity else command - q
         q = q + response * np.where(np.abs(error) > dead_band, error, 0.0)
         if grip is not None:  # the object, as long as the delayed command holds it
-            q[grip] = max(q[grip], stops[max(t + 1 - delays[grip], 0)])
+            q[grip] = max(q[grip], stops[min(max(t + 1 - delays[grip], 0), frames - 1)])
     readings = positions + rng.normal(0.0, dynamics.reading_noise * unit, positions.shape)
     if dynamics.quantise and body.encoder_step is not None:
         step = np.asarray(body.encoder_step)
