@@ -67,8 +67,16 @@ def test_each_action_gets_its_own_lag_and_a_differently_named_one_the_column_it_
     # Two actions named as states 0 and 1, the third named otherwise: it follows state 2 at lag 4, sign and scale aside.
     columns, lags = action_sources(walk, actions, episodes, [0, 1, None])
     assert columns == [0, 1, 2] and lags == [2, 7, 4]
-    # An action that follows no state (an engine's thrust) is not the linear-first model's.
-    assert action_sources(walk, rng.normal(size=(600, 1)), episodes, [None]) is None
+    # Actions that follow no state (an engine's thrust) are not the linear-first model's; one such dimension beside a
+    # majority that do is, with its closest column.
+    noise = rng.normal(size=(600, 1))
+    assert action_sources(walk, noise, episodes, [None]) is None
+    assert (
+        action_sources(walk, np.concatenate([actions[:, :2], noise, noise], axis=1), episodes, [0, 1, None, None])
+        is None
+    )
+    columns, _ = action_sources(walk, np.concatenate([actions, noise], axis=1), episodes, [0, 1, None, None])
+    assert columns[:3] == [0, 1, 2] and len(columns) == 4
     assert named_sources(["a", "b"], ["b", "c"]) == [None, 0]
     # Candidate fits are judged on whole held-out episodes where there are two or more, on blocks in one.
     assert selection_folds(episodes).tolist() == np.repeat([0, 1, 2], 200).tolist()

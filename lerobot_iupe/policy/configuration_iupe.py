@@ -62,8 +62,8 @@ class IUPEConfig(ObservationPolicyConfig):
     # None = chosen from the labelled data. Resolved when training starts, so config.json records them.
     idm_joint_lags: list[int] | None = None
     # The observation.state column of each action dimension in that model: the state of the same name, else the column
-    # the action follows most closely (|correlation| ≥ 0.8 at its lag). [] = off (the IDM of the paper's envs and
-    # cameras). None = on wherever every action dimension has such a column.
+    # the action follows most closely (|correlation| at its lag). [] = off (the IDM of the paper's envs and cameras).
+    # None = on wherever most action dimensions are named as states or follow a column (|correlation| ≥ 0.8).
     joint_state_columns: list[int] | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.

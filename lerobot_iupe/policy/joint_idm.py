@@ -121,10 +121,12 @@ def action_sources(
     states: np.ndarray, actions: np.ndarray, episodes: np.ndarray, named: list[int | None], longest: int = 10
 ) -> tuple[list[int], list[int]] | None:
     """Each action dimension's source column and lag: the state of the same name at its best copy lag, else the
-    (column, lag) of largest |correlation|. None when a differently-named dimension resembles no column
-    (``RESEMBLANCE``): its action is not read off the state (an engine's thrust, say)."""
+    (column, lag) of largest |correlation|. None unless most dimensions are read off the state (named, or resembling
+    a column: ``RESEMBLANCE``): actions that are not (an engine's thrust, an end-effector delta) keep the IDM of the
+    whole observation. A dimension that resembles no column beside a majority that do (a waist among arm joints)
+    still gets its closest column; its fit over every column can then win (``fit_linear``)."""
     states, actions = np.asarray(states, np.float64), np.asarray(actions, np.float64)
-    columns, lags = [], []
+    columns, lags, weak = [], [], 0
     correlation = None
     for j, column in enumerate(named):
         if column is not None:
@@ -135,10 +137,11 @@ def action_sources(
         if correlation is None:
             correlation = resemblance(states, actions, episodes, longest)
         lag, column = np.unravel_index(np.argmax(correlation[:, j]), correlation[:, j].shape)
-        if correlation[lag, j, column] < RESEMBLANCE:
-            return None
+        weak += int(correlation[lag, j, column] < RESEMBLANCE)
         columns.append(int(column))
         lags.append(int(lag))
+    if 2 * weak >= len(named):
+        return None
     return columns, lags
 
 
