@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 from lerobot.configs import PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
@@ -255,6 +256,8 @@ class IUPEConfig(ObservationPolicyConfig):
         a checkpoint's values stay)."""
         features = dataset_meta.features
         named = named_sources(feature_names(features.get(ACTION)), feature_names(features.get(OBS_STATE)))
+        size = int(np.prod(features.get(ACTION, {}).get("shape", (0,))))
+        named = named if len(named) == size else [None] * size  # unnamed actions: each finds the column it follows
         if self.joint_state_columns is None:
             sources = None
             own_keys = self.idm_observation_keys in (None, [OBS_STATE])  # an IDM of other keys was asked for
