@@ -12,13 +12,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lerobot_iupe.envs.configs import env_config_from_settings
-from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
-from lerobot_iupe.policy.training import IUPETrainer
-
 
 def measure(checkpoint: Path, episodes: int, seed: int, rule: str) -> dict[str, float]:
     """The IUPE cycle's own rollout (batched, envs made by LeRobot's ``make_env``), by the mode or by draws."""
+    # Imported here, after the flags are checked: a wrong flag is refused at once, not after torch and LeRobot load.
+    from lerobot_iupe.envs.configs import env_config_from_settings
+    from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
+    from lerobot_iupe.policy.training import IUPETrainer
+
     policy = IUPEPolicy.from_pretrained(checkpoint)
     trainer = IUPETrainer(policy, dataset_meta=None, seed=seed)
     trainer.use_env(env_config_from_settings(policy.config.env_settings))

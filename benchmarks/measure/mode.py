@@ -21,17 +21,19 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import torch
-from lerobot.datasets import LeRobotDataset
-
-from lerobot_iupe.data.readers import ExpertFrames
-from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
-from lerobot_iupe.policy.training_state import TRAINING_STATE_FILE
 
 STILL = 0.1  # |vx|, |vy| below this count as standing still (the env's goal check)
 
 
 def engines(checkpoint: Path, data: Path, weights: str = "selected") -> dict[str, float]:
+    # Imported here, after the flags are checked: a wrong flag is refused before torch and LeRobot load.
+    import torch
+    from lerobot.datasets import LeRobotDataset
+
+    from lerobot_iupe.data.readers import ExpertFrames
+    from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
+    from lerobot_iupe.policy.training_state import TRAINING_STATE_FILE
+
     policy = IUPEPolicy.from_pretrained(checkpoint)
     if weights == "latest":
         state = torch.load(checkpoint / TRAINING_STATE_FILE, map_location="cpu", weights_only=True)
@@ -74,6 +76,8 @@ def main() -> None:
     args = parser.parse_args()
     if not (args.data / "meta" / "info.json").is_file():
         parser.error(f"--data={args.data} is not a LeRobot dataset (no meta/info.json)")
+    from lerobot_iupe.policy.training_state import TRAINING_STATE_FILE
+
     for checkpoint in args.checkpoints:
         if "latest" in args.weights and not (checkpoint / TRAINING_STATE_FILE).is_file():
             parser.error(f"--weights=latest: {checkpoint} holds no {TRAINING_STATE_FILE} (a lerobot-train checkpoint)")
