@@ -2,7 +2,8 @@
 arm, six joint positions, the leader arm's joint positions as actions, 30 fps (``lerobot_iupe.data.arm_recording``).
 The follower behaves as a real SO-101 measured: a transport delay, a servo's first-order response with a dead band,
 gravity on shoulder and elbow, jaws stopped by grasped objects, 12-bit encoder readings. Data to try relabelling and
-camera training on without a robot; the tests, ``cameras.py`` and ``arm_idm.py`` use it.
+camera training on without a robot; the tests, ``benchmarks/measure/cameras.py`` and
+``benchmarks/measure/arm_idm.py`` use it.
 
     python scripts/make_arm_recording.py --root data/arm --episodes 40 [--frames 250] [--state_only] [--delay 4]
     python scripts/make_arm_recording.py --root data/humanoid --no_cameras --body humanoid --idle left_arm
