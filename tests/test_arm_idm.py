@@ -33,7 +33,6 @@ from lerobot_iupe.policy.joint_idm import (
     fit_linear,
     fit_ridge,
     gate_weights,
-    joint_state_columns,
     max_lag,
     named_sources,
     selection_folds,
@@ -44,9 +43,9 @@ DELAY = 4
 
 def test_joint_columns_pair_each_action_with_the_state_of_its_name():
     state = ["shoulder_pan.pos", "elbow_flex.pos", "gripper.pos"]
-    assert joint_state_columns(["gripper.pos", "shoulder_pan.pos"], state) == [2, 0]
-    assert joint_state_columns(["gripper.pos", "dx"], state) is None  # not every action is a joint position
-    assert joint_state_columns(["main_engine", "lateral_engines"], ["x", "y"]) is None
+    assert named_sources(["gripper.pos", "shoulder_pan.pos"], state) == [2, 0]
+    assert named_sources(["gripper.pos", "dx"], state) == [2, None]  # not every action is a joint position
+    assert named_sources(["main_engine", "lateral_engines"], ["x", "y"]) == [None, None]
 
 
 def test_the_lag_is_where_the_action_best_matches_a_later_state_within_its_episode():

@@ -13,7 +13,7 @@ over a fixed textured table, so that a codec has real work.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -228,10 +228,10 @@ SO101 = ArmBody(
 # A second SO-101 whose leader's wrist_roll reads 74 above the follower's, and whose follower's wrist_roll barely
 # follows (it is driven over a twelfth of the leader's travel, slowly, through a wide dead band: its state spans a
 # few units while the leader's spans tens), as measured on a real recording.
-SO101_MISCALIBRATED = ArmBody(
-    **{**SO101.__dict__, "name": "so101_miscalibrated", "offset": (0, 0, 0, 0, -74.0, 0),
-       "mapping": tuple(tuple(float(i == j) * (1 / 12 if i == 4 else 1) for j in range(6)) for i in range(6)),
-       "response": (1, 1, 1, 1, 0.2, 1), "dead_band": (1, 1, 1, 1, 6.0, 1)},
+SO101_MISCALIBRATED = replace(
+    SO101, name="so101_miscalibrated", offset=(0, 0, 0, 0, -74.0, 0),
+    mapping=tuple(tuple(float(i == j) * (1 / 12 if i == 4 else 1) for j in range(6)) for i in range(6)),
+    response=(1, 1, 1, 1, 0.2, 1), dead_band=(1, 1, 1, 1, 6.0, 1),
 )  # fmt: skip
 # An SO-101 leader driving another follower of seven values (an AgileX Piper's joint_1 … joint_6 and gripper): signs,
 # scales, offsets and one coupling differ from the identity, joint_4 has no leader joint and stays near 0.
@@ -255,8 +255,8 @@ _is_hand = np.array([name.split("_", 1)[1] in HUMANOID_HAND for name in HUMANOID
 # (5 more frames of delay) and slower than the arms, as the real recording's copy lags show (4–7 arms, 9–10 fingers).
 HUMANOID = ArmBody(
     "humanoid", HUMANOID_NAMES, HUMANOID_NAMES,
-    tuple(np.where(_is_hand, 0.0, -1.5)), tuple(np.where(_is_hand, 1.7, 1.5)),
-    extra_delay=tuple(np.where(_is_hand, 5, 0).tolist()), response=tuple(np.where(_is_hand, 0.7, 1.0)),
+    tuple(np.where(_is_hand, 0.0, -1.5).tolist()), tuple(np.where(_is_hand, 1.7, 1.5).tolist()),
+    extra_delay=tuple(np.where(_is_hand, 5, 0).tolist()), response=tuple(np.where(_is_hand, 0.7, 1.0).tolist()),
     unit=np.pi / 180, encoder_step=(2 * np.pi / 4096,) * 26, robot_type="humanoid",
 )  # fmt: skip
 BODIES = {body.name: body for body in (SO101, SO101_MISCALIBRATED, OTHER_LEADER, HUMANOID)}

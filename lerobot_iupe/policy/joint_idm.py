@@ -40,17 +40,6 @@ RESEMBLANCE = 0.8
 CLEARLY_BETTER = 0.8
 
 
-def joint_state_columns(action_names: list[str] | None, state_names: list[str] | None) -> list[int] | None:
-    """For each action dimension, the ``observation.state`` column of the same name; None unless every action
-    dimension has one (an arm whose actions are joint positions)."""
-    if not action_names or not state_names:
-        return None
-    position = {name: i for i, name in enumerate(state_names)}
-    if any(name not in position for name in action_names):
-        return None
-    return [position[name] for name in action_names]
-
-
 def named_sources(action_names: list[str] | None, state_names: list[str] | None) -> list[int | None]:
     """For each action dimension, the state column of the same name, or None."""
     position = {name: i for i, name in enumerate(state_names or [])}
@@ -126,30 +115,35 @@ def action_sources(
     whole observation. A dimension that resembles no column beside a majority that do (a waist among arm joints)
     still gets its closest column; its fit over every column can then win (``fit_linear``)."""
     states, actions = np.asarray(states, np.float64), np.asarray(actions, np.float64)
-    columns, lags, weak = [], [], 0
-    correlation = None
-    for j, column in enumerate(named):
-        if column is not None:
-            errors = joint_copy_errors(states, actions[:, [j]], episodes, [column], longest)[:, 0]
-            columns.append(column)
-            lags.append(int(np.argmin(errors)))
-            continue
-        if correlation is None:
-            correlation = resemblance(states, actions, episodes, longest)
-        lag, column = np.unravel_index(np.argmax(correlation[:, j]), correlation[:, j].shape)
-        weak += int(correlation[lag, j, column] < RESEMBLANCE)
-        columns.append(int(column))
-        lags.append(int(lag))
+    columns, lags = list(named), [0] * len(named)
+    same = [j for j, column in enumerate(named) if column is not None]
+    if same:
+        errors = joint_copy_errors(states, actions[:, same], episodes, [named[j] for j in same], longest)
+        for j, lag in zip(same, np.argmin(errors, axis=0).tolist(), strict=True):
+            lags[j] = lag
+    other = [j for j, column in enumerate(named) if column is None]
+    weak = 0
+    if other:
+        correlation = resemblance(states, actions[:, other], episodes, longest)
+        for n, j in enumerate(other):
+            lag, column = np.unravel_index(np.argmax(correlation[:, n]), correlation[:, n].shape)
+            weak += int(correlation[lag, n, column] < RESEMBLANCE)
+            columns[j], lags[j] = int(column), int(lag)
     if 2 * weak >= len(named):
         return None
     return columns, lags
 
 
-def _fold_sums(scaled: np.ndarray, targets: np.ndarray, folds: np.ndarray) -> list[tuple]:
-    return [
-        (scaled[fold].T @ scaled[fold], scaled[fold].T @ targets[fold], (targets[fold] ** 2).sum(axis=0))
-        for fold in (folds == f for f in np.unique(folds))
-    ]
+def _fold_sums(
+    features: np.ndarray, mean: np.ndarray, std: np.ndarray, targets: np.ndarray, folds: np.ndarray
+) -> list[tuple]:
+    """Per fold, (ZᵀZ, Zᵀy, Σy²) of its standardised features Z (with a column of ones): one fold standardised at a
+    time, so that no standardised copy of all the features is held."""
+    sums = []
+    for fold in (folds == f for f in np.unique(folds)):
+        scaled = np.concatenate([(features[fold] - mean) / std, np.ones((int(fold.sum()), 1))], axis=1)
+        sums.append((scaled.T @ scaled, scaled.T @ targets[fold], (targets[fold] ** 2).sum(axis=0)))
+    return sums
 
 
 def _held_out_errors(sums: list[tuple], alphas: tuple[float, ...], penalty: np.ndarray) -> np.ndarray:
@@ -179,13 +173,12 @@ def fit_ridge(
     b in the features' own units, the alphas and their held-out squared errors."""
     features, targets = np.asarray(features, np.float64), np.asarray(targets, np.float64)
     mean, std = features.mean(axis=0), features.std(axis=0) + 1e-6
-    scaled = np.concatenate([(features - mean) / std, np.ones((len(features), 1))], axis=1)
     penalty = np.diag(np.r_[np.ones(features.shape[1]), 0.0])
-    sums = _fold_sums(scaled, targets, episode_blocks(groups) % MAX_FOLDS if folds is None else folds)
+    sums = _fold_sums(features, mean, std, targets, episode_blocks(groups) % MAX_FOLDS if folds is None else folds)
     errors = _held_out_errors(sums, alphas, penalty)
     chosen = errors.argmin(axis=0)
     gram, moment = sum(g for g, _, _ in sums), sum(m for _, m, _ in sums)
-    coef = np.zeros((scaled.shape[1], targets.shape[1]))
+    coef = np.zeros((features.shape[1] + 1, targets.shape[1]))
     for n in np.unique(chosen):
         coef[:, chosen == n] = np.linalg.solve(gram + alphas[n] * penalty, moment[:, chosen == n])
     weight = coef[:-1] / std[:, None]
@@ -329,7 +322,7 @@ class JointIDM(nn.Module):
         (``REFERENCE_ALPHA``)."""
         columns = self.columns.cpu().numpy().tolist()
         weight, bias, report = fit_linear(windows, actions, episodes, self.copy_frames, columns, named)
-        flat = windows.reshape(len(windows), -1).astype(np.float64)
+        flat = windows.reshape(len(windows), -1)  # fit_ridge reads it in float64
         reference_weight, reference_bias, *_ = fit_ridge(flat, actions, episodes, (REFERENCE_ALPHA,))
         device = self.linear_weight.device
         as_buffer = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float32, device=device)  # noqa: E731
