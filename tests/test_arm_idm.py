@@ -6,8 +6,13 @@ on the same data."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import re
+import runpy
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -282,7 +287,7 @@ def default_run_and_dry_run(shared_dir, labelled, held_out) -> tuple[dict, dict]
     out = shared_dir / "runs" / labelled.name
     run = train_once(
         out, "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{labelled.name}",
-        f"--dataset.root={labelled}", "--batch_size=64", "--steps=300", "--save_freq=300", "--num_workers=0",
+        f"--dataset.root={labelled}", "--batch_size=64", "--steps=100", "--save_freq=100", "--num_workers=0",
         "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false", f"--output_dir={out}",
     )  # fmt: skip
     result = run_in_process(
@@ -321,3 +326,24 @@ def test_an_arm_idm_asked_of_an_unsupervised_run_or_of_cameras_is_refused_naming
     with pytest.raises(ValueError, match="idm_observation_keys.*joint_state_columns=\\[\\]"):
         IUPEConfig(supervised=True, joint_state_columns=[0], idm_observation_keys=["observation.images.front"])
     assert IUPEConfig(supervised=True, joint_state_columns=[]).idm_window == [0, 1]
+
+
+def test_the_generator_refuses_cameras_on_another_body_and_unknown_idle_joints_writing_nothing(tmp_path, monkeypatch):
+    """scripts/make_arm_recording.py run in this process (its imports are already loaded): exit code 2, the flag
+    named, no folder written."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "make_arm_recording.py"
+    root = tmp_path / "arm"
+    cases = [
+        (["--body", "humanoid"], "--body=humanoid: the cameras draw an SO-101; add --no_cameras"),
+        (["--body", "other_leader", "--no_cameras", "--idle", "left_elbow"], "--idle: ['left_elbow'] are not joints"),
+    ]
+    for flags, message in cases:
+        monkeypatch.setattr(sys, "argv", [str(script), f"--root={root}", *flags])
+        stderr = io.StringIO()
+        with contextlib.redirect_stderr(stderr), pytest.raises(SystemExit) as exit_:
+            runpy.run_path(str(script), run_name="__main__")
+        assert exit_.value.code == 2 and message in stderr.getvalue(), stderr.getvalue()
+        assert not root.exists()
+    with pytest.raises(ValueError, match="idle joints \\['wrist'\\] are not among"):
+        write_arm_recording(root, 1, 10, cameras=False, idle=("wrist",))
+    assert not root.exists()
