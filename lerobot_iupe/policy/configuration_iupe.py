@@ -4,14 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
 from lerobot.configs import PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims, feature_names
-from lerobot_iupe.policy.joint_fit import sources_of_dataset
-from lerobot_iupe.policy.joint_idm import max_lag, named_sources
+from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims
+from lerobot_iupe.policy.joint_fit import named_columns, sources_of_dataset
+from lerobot_iupe.policy.joint_idm import max_lag
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
 # Measured with benchmarks/measure/context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
@@ -255,19 +254,17 @@ class IUPEConfig(ObservationPolicyConfig):
         """The linear-first model's source columns and lags, from the dataset's names and its labelled frames (once:
         a checkpoint's values stay)."""
         features = dataset_meta.features
-        named = named_sources(feature_names(features.get(ACTION)), feature_names(features.get(OBS_STATE)))
-        size = int(np.prod(features.get(ACTION, {}).get("shape", (0,))))
-        named = named if len(named) == size else [None] * size  # unnamed actions: each finds the column it follows
         if self.joint_state_columns is None:
             sources = None
             own_keys = self.idm_observation_keys in (None, [OBS_STATE])  # an IDM of other keys was asked for
             float_actions = features.get(ACTION, {}).get("dtype", "").startswith("float")
             if self.supervised and own_keys and float_actions and OBS_STATE in self.observation_keys:
+                named = named_columns(dataset_meta)  # unnamed actions: each finds the column it follows
                 sources = None if self.binary_action_dims else sources_of_dataset(dataset_meta, named, self.idm_lag)
             self.joint_state_columns, self.idm_joint_lags = sources or ([], None)
         elif self.joint_idm and self.idm_joint_lags is None:
-            lags = sources_of_dataset(dataset_meta, list(self.joint_state_columns), self.idm_lag)
-            self.idm_joint_lags = lags[1] if lags else [self.idm_lag or 0] * len(self.joint_state_columns)
+            sources = sources_of_dataset(dataset_meta, list(self.joint_state_columns), self.idm_lag)
+            self.idm_joint_lags = sources[1] if sources else [self.idm_lag or 0] * len(self.joint_state_columns)
         if not self.joint_idm:
             self.idm_lag = self.idm_lag or 0
         else:

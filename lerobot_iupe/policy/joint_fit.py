@@ -31,10 +31,18 @@ def labelled_rows(episodes: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.isin(episodes, np.asarray(chosen)))
 
 
-def named_joints(dataset_meta, columns: list[int]) -> list[bool]:
-    """Whether each action dimension's source column is the state of its own name."""
+def named_columns(dataset_meta) -> list[int | None]:
+    """For each action dimension, the ``observation.state`` column of the same name, or None (all None when the
+    action's values have no names)."""
     features = dataset_meta.features
     named = named_sources(feature_names(features.get(ACTION)), feature_names(features.get(OBS_STATE)))
+    size = int(np.prod(features.get(ACTION, {}).get("shape", (0,))))
+    return named if len(named) == size else [None] * size
+
+
+def named_joints(dataset_meta, columns: list[int]) -> list[bool]:
+    """Whether each action dimension's source column is the state of its own name."""
+    named = named_columns(dataset_meta)
     if len(named) != len(columns):
         return [False] * len(columns)
     return [n == c for n, c in zip(named, columns, strict=True)]
