@@ -313,7 +313,7 @@ class JointIDM(nn.Module):
     def forward(self, window: Tensor) -> Tensor:
         """The network's per-joint correction (B, A): each joint reads its own source's window, standardised."""
         standard = (window.float() - self.center) / self.scale
-        own = torch.maximum(torch.minimum(standard, self.high), self.low)[:, :, self.columns]
+        own = standard.clamp(self.low, self.high)[:, :, self.columns]
         return self.net(own.transpose(1, 2).reshape(len(own), -1, 1)).squeeze(-1)
 
     def fit(self, windows: np.ndarray, actions: np.ndarray, episodes: np.ndarray, named: list[bool]) -> dict[str, list]:
