@@ -1,11 +1,13 @@
 import contextlib
 import io
 import json
+import logging
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
+import traceback
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -38,12 +40,15 @@ def run_cli(name: str, *args: str, env: dict | None = None, check: bool = True) 
 
 
 def run_in_process(name: str, *args: str, check: bool = False) -> subprocess.CompletedProcess:
-    """One of the package's commands (lerobot-iupe-*) run in this process: its installed console-script function
-    with these arguments, its exit code and output. For refusals and fixture data, where a new process would spend
-    ~5 s importing torch and LeRobot; the commands themselves run as processes elsewhere in the suite."""
+    """An installed command (lerobot-iupe-*, lerobot-train, lerobot-eval) run in this process: its console-script
+    function with these arguments, its exit code and output. A new process would spend ~5 s importing torch and
+    LeRobot; the commands run as processes where the process is what a test checks (README's workflows, a second
+    writer, kill -9, the hub's environment, the benchmark's jobs)."""
     (script,) = [e for e in entry_points(group="console_scripts") if e.name == name]
     main = script.load()
     out, err, threads, argv = io.StringIO(), io.StringIO(), torch.get_num_threads(), sys.argv
+    # LeRobot's init_logging replaces the root logger's handlers with one bound to this call's captured stderr
+    handlers, level = logging.root.handlers[:], logging.root.level
     sys.argv = [name, *args]
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
@@ -51,9 +56,13 @@ def run_in_process(name: str, *args: str, check: bool = False) -> subprocess.Com
         code = 0
     except SystemExit as exit_:
         code = exit_.code if isinstance(exit_.code, int) else int(exit_.code is not None)
+    except Exception:  # as Python ends a process on an uncaught exception: the traceback, exit code 1
+        traceback.print_exc(file=err)
+        code = 1
     finally:
         sys.argv = argv
         torch.set_num_threads(threads)  # lerobot-iupe-relabel sets its own
+        logging.root.handlers[:], logging.root.level = handlers, level
     if check and code != 0:
         raise AssertionError(f"{name} failed ({code}):\n{out.getvalue()[-3000:]}\n{err.getvalue()[-5000:]}")
     return subprocess.CompletedProcess([name, *args], code, out.getvalue(), err.getvalue())
@@ -93,7 +102,12 @@ def collect(data_dir: Path, name: str, *args: str) -> Path:
 
 def train_once(out: Path, *args: str) -> Path:
     """A lerobot-train run into ``out``, shared by every worker; its output directory."""
-    return once(out, lambda: (shutil.rmtree(out, ignore_errors=True), run_cli("lerobot-train", *args)), CHECKPOINT)
+
+    def train() -> None:
+        shutil.rmtree(out, ignore_errors=True)
+        run_in_process("lerobot-train", *args, check=True)
+
+    return once(out, train, CHECKPOINT)
 
 
 @pytest.fixture(scope="session")
@@ -194,7 +208,7 @@ def maze_run(maze_expert, maze_random, shared_dir) -> Path:
 
 
 def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
-    run_cli(
+    run_in_process(
         "lerobot-eval",
         f"--policy.path={checkpoint}",
         *env_args,
@@ -204,5 +218,6 @@ def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
         f"--output_dir={output}",
         "--policy.device=cpu",
         "--seed=500000",
+        check=True,
     )
     return json.loads((output / "eval_info.json").read_text())["overall"]

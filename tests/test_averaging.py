@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from conftest import CHECKPOINT, run_cli
+from conftest import CHECKPOINT, run_in_process
 from safetensors.torch import load_file
 from test_modeling import make_policy
 
@@ -63,11 +63,11 @@ def test_lerobot_train_saves_the_average_and_trains_the_same_weights(cartpole_la
     saved = {}
     for decay in ("0", "0.9"):
         out = tmp_path / decay
-        run_cli(
+        run_in_process(
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true",
             f"--dataset.repo_id=local/{cartpole_labelled.name}", f"--dataset.root={cartpole_labelled}",
             f"--output_dir={out}", "--num_workers=0", "--policy.device=cpu", "--wandb.enable=false", "--steps=30",
-            "--save_freq=30", "--batch_size=32", "--seed=3", f"--policy.ema_decay={decay}",
+            "--save_freq=30", "--batch_size=32", "--seed=3", f"--policy.ema_decay={decay}", check=True
         )  # fmt: skip
         saved[decay] = load_file(out / CHECKPOINT / "model.safetensors")
     plain, averaged = saved["0"], saved["0.9"]

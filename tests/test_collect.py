@@ -99,7 +99,7 @@ def test_bad_input_is_refused_and_writes_nothing(tmp_path, args, message):
 
 def test_existing_root_is_refused_and_untouched(cartpole_expert):
     before = {p: p.stat().st_mtime_ns for p in cartpole_expert.rglob("*")}
-    result = run_cli(
+    result = run_in_process(
         "lerobot-iupe-collect",
         "--env.type=cartpole",
         "--dataset.repo_id=local/x",
@@ -162,9 +162,10 @@ def test_iupe_trains_and_lerobot_eval_runs_on_the_arms_camera_and_state(data_dir
     camera = ["--env.type=so101_pickplace", "--env.image_obs=true", "--env.image_size=48", "--env.episode_length=12"]
     expert = collect_fixture(data_dir, "so101-camera-expert", *camera, "--agent=expert", "--episodes=2")
     play = collect_fixture(data_dir, "so101-camera-play", *camera, "--agent=play", "--episodes=2", "--seed=100")
-    run_cli(
+    run_in_process(
         "lerobot-train", *train_args(expert, play, tmp_path / "run"), "--steps=4", "--save_freq=4", "--batch_size=8",
         "--policy.cycle_steps=2", "--policy.rollout_episodes=2", "--policy.idm_epochs=1", "--policy.torch_threads=1",
+        check=True,
     )  # fmt: skip
     checkpoint = tmp_path / "run" / CHECKPOINT
     config = json.loads((checkpoint / "config.json").read_text())

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
-from conftest import CHECKPOINT, collect, evaluate, run_cli, train_args, train_once
+from conftest import CHECKPOINT, collect, evaluate, run_in_process, train_args, train_once
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -92,7 +92,7 @@ def test_so101_plugin_env_trains_from_lerobot_train_env_flags_without_package_me
     out = tmp_path / "run"
     flags = ["--steps=20", "--batch_size=16", "--save_freq=20", "--policy.cycle_steps=10",
              "--policy.rollout_episodes=2", *env_args, "--env_eval_freq=0"]  # fmt: skip
-    run_cli("lerobot-train", *train_args(bare, random, out, *flags))
+    run_in_process("lerobot-train", *train_args(bare, random, out, *flags), check=True)
     policy = IUPEPolicy.from_pretrained(out / CHECKPOINT)
     assert policy.config.observation_keys == [OBS_STATE, OBS_ENV_STATE]
     assert policy.config.env_settings["type"] == "so101_pickplace"
@@ -133,9 +133,9 @@ def test_a_full_iupe_checkpoint_relabels_state_only_lunarlander_data_with_named_
 ):
     dataset = tmp_path / "lunar-expert"
     shutil.copytree(lunar_data["expert"], dataset)
-    run_cli(
+    run_in_process(
         "lerobot-iupe-relabel", f"--policy.path={lunar_run / CHECKPOINT}", "--dataset.repo_id=local/lunar-expert",
-        f"--dataset.root={dataset}",
+        f"--dataset.root={dataset}", check=True
     )  # fmt: skip
     relabelled = LeRobotDataset("local/lunar-expert", root=dataset)
     feature = relabelled.meta.features[ACTION]
@@ -155,9 +155,9 @@ def test_relabel_pulls_lunarlander_labels_toward_the_observation_and_records_it(
     def written(name: str, *extra: str) -> tuple[np.ndarray, LeRobotDataset]:
         root = tmp_path / name
         shutil.copytree(lunar_data["expert"], root)
-        run_cli(
+        run_in_process(
             "lerobot-iupe-relabel", f"--policy.path={lunar_run / CHECKPOINT}", f"--dataset.repo_id=local/{name}",
-            f"--dataset.root={root}", *extra,
+            f"--dataset.root={root}", *extra, check=True
         )  # fmt: skip
         dataset = LeRobotDataset(f"local/{name}", root=root)
         return np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]), dataset
@@ -176,10 +176,10 @@ def test_ilpo_remaps_continuous_actions_by_regression(lunar_data, tmp_path):
     executed action; its online score is then a squared error, and the policy acts inside the bounds."""
     out = tmp_path / "ilpo"
     expert = lunar_data["expert"]
-    run_cli(
+    run_in_process(
         "lerobot-train", "--policy.type=ilpo", f"--dataset.repo_id=local/{expert.name}", f"--dataset.root={expert}",
         "--dataset.video_backend=pyav", f"--output_dir={out}", "--num_workers=0", "--policy.device=cpu",
-        "--wandb.enable=false", "--steps=20", "--batch_size=32", "--policy.remap_steps=80",
+        "--wandb.enable=false", "--steps=20", "--batch_size=32", "--policy.remap_steps=80", check=True
     )  # fmt: skip
     checkpoint = out / CHECKPOINT
     summary = json.loads((checkpoint / "ilpo_remapping.json").read_text())

@@ -10,7 +10,7 @@ import shutil
 import numpy as np
 import pytest
 import torch
-from conftest import CHECKPOINT, once, run_cli, run_in_process
+from conftest import CHECKPOINT, once, run_in_process
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
@@ -79,12 +79,12 @@ def fused_idm(shared_dir):
         for leftover in (labelled, work / "idm"):
             shutil.rmtree(leftover, ignore_errors=True)
         write_three_views(labelled, episodes=16, seed=0, with_actions=True)
-        run_cli(
+        run_in_process(
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", "--policy.idm_context=0",
             f"--dataset.repo_id=local/{labelled.name}", f"--dataset.root={labelled}", "--dataset.video_backend=pyav",
             f"--output_dir={work / 'idm'}", "--num_workers=0", "--policy.device=cpu", "--wandb.enable=false",
             "--steps=400", "--save_freq=400", "--batch_size=64", "--policy.optimizer_lr=3e-3",
-            "--policy.torch_threads=1",
+            "--policy.torch_threads=1", check=True
         )  # fmt: skip
 
     return once(work / "idm", make, CHECKPOINT) / CHECKPOINT, work

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 import torch
-from conftest import CHECKPOINT, run_cli
+from conftest import CHECKPOINT, run_in_process
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
@@ -73,10 +73,11 @@ def test_a_policy_with_history_learns_what_the_current_observation_cannot_tell(t
     scores = {}
     for n in (1, 2):
         out = tmp_path / f"bc-{n}"
-        run_cli(
+        run_in_process(
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{data.name}",
             f"--dataset.root={data}", f"--output_dir={out}", "--num_workers=0", "--policy.device=cpu",
             "--wandb.enable=false", "--steps=400", "--save_freq=400", "--batch_size=64", f"--policy.n_obs_steps={n}",
+            check=True,
         )  # fmt: skip
         policy = IUPEPolicy.from_pretrained(out / CHECKPOINT).eval()
         assert policy.config.n_obs_steps == n

@@ -8,7 +8,7 @@ from itertools import permutations
 import numpy as np
 import pytest
 import torch
-from conftest import CHECKPOINT, evaluate, run_cli, train_once
+from conftest import CHECKPOINT, evaluate, run_in_process, train_once
 from lerobot.configs import FeatureType, PolicyFeature
 
 from lerobot_iupe.ilpo import ILPOConfig, ILPOPolicy
@@ -163,9 +163,15 @@ def test_lerobot_train_then_lerobot_eval_run_ilpo_on_cartpole(ilpo_run, tmp_path
 def test_a_resumed_ilpo_run_ends_where_an_uninterrupted_one_does(cartpole_expert, tmp_path):
     extra = ["--save_freq=20", "--policy.remap_steps=60"]
     whole, parts = tmp_path / "whole", tmp_path / "parts"
-    run_cli("lerobot-train", *ilpo_args(cartpole_expert, whole, "--steps=40", *extra))
-    run_cli("lerobot-train", *ilpo_args(cartpole_expert, parts, "--steps=20", *extra))
-    run_cli("lerobot-train", f"--config_path={parts / CHECKPOINT / 'train_config.json'}", "--resume=true", "--steps=40")
+    run_in_process("lerobot-train", *ilpo_args(cartpole_expert, whole, "--steps=40", *extra), check=True)
+    run_in_process("lerobot-train", *ilpo_args(cartpole_expert, parts, "--steps=20", *extra), check=True)
+    run_in_process(
+        "lerobot-train",
+        f"--config_path={parts / CHECKPOINT / 'train_config.json'}",
+        "--resume=true",
+        "--steps=40",
+        check=True,
+    )
     model = "model.safetensors"
     assert (parts / CHECKPOINT / model).read_bytes() == (whole / CHECKPOINT / model).read_bytes()
     summaries = [json.loads((p / CHECKPOINT / "ilpo_remapping.json").read_text()) for p in (whole, parts)]
@@ -176,6 +182,6 @@ def test_ilpo_without_an_env_stops_before_training_naming_the_flag(cartpole_expe
     bare = tmp_path / "bare"  # the expert data without meta/iupe.json: no env recorded
     shutil.copytree(cartpole_expert, bare)
     (bare / "meta" / "iupe.json").unlink()
-    result = run_cli("lerobot-train", *ilpo_args(bare, tmp_path / "out", "--steps=2"), check=False)
+    result = run_in_process("lerobot-train", *ilpo_args(bare, tmp_path / "out", "--steps=2"), check=False)
     assert result.returncode != 0 and "--env.type" in result.stderr + result.stdout
     assert not (tmp_path / "out" / "checkpoints").exists()  # refused before any checkpoint is written

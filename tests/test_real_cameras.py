@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import BIN, CHECKPOINT, once, run_cli, run_in_process
+from conftest import BIN, CHECKPOINT, once, run_in_process
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.data.arm_recording import CAMERAS, write_arm_recording
@@ -90,8 +90,8 @@ def test_relabelling_labels_what_the_policy_sees_of_lerobots_own_frames(arm_run,
     policy's rule: the decoder-side resize feeds the IDM what lerobot-eval would."""
     root = tmp_path / "copy"
     write_arm_recording(root, 2, 12, repo_id="local/copy", with_actions=False, seed=7)
-    run_cli("lerobot-iupe-relabel", f"--policy.path={arm_run / CHECKPOINT}", "--dataset.repo_id=local/copy",
-            f"--dataset.root={root}", "--dataset.video_backend=pyav")  # fmt: skip
+    run_in_process("lerobot-iupe-relabel", f"--policy.path={arm_run / CHECKPOINT}", "--dataset.repo_id=local/copy",
+            f"--dataset.root={root}", "--dataset.video_backend=pyav", check=True)  # fmt: skip
     labelled = LeRobotDataset("local/copy", root=root, video_backend="pyav")
     policy = IUPEPolicy.from_pretrained(arm_run / CHECKPOINT).eval()
     items = [labelled[i] for i in range(12)]
@@ -258,11 +258,11 @@ def arm_joint_run(arm_labelled, shared_dir) -> Path:
     out = shared_dir / "runs" / "arm-joint"
 
     def train() -> None:
-        run_cli(
+        run_in_process(
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true",
             f"--dataset.repo_id=local/{arm_labelled.name}", f"--dataset.root={arm_labelled}",
             "--dataset.video_backend=pyav", "--batch_size=8", "--steps=4", "--save_freq=4", "--num_workers=0",
-            "--policy.device=cpu", "--wandb.enable=false", f"--output_dir={out}",
+            "--policy.device=cpu", "--wandb.enable=false", f"--output_dir={out}", check=True
         )  # fmt: skip
 
     return once(out, train, CHECKPOINT)

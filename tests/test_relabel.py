@@ -62,7 +62,7 @@ def true_actions(root) -> tuple[np.ndarray, np.ndarray]:
 def test_relabelled_state_dataset_matches_the_true_actions(cartpole_run, data_dir):
     checkpoint = cartpole_run / CHECKPOINT
     labelled, stripped = labelled_and_stripped(data_dir, "cartpole-relabel", "--env.type=cartpole", "--episodes=2")
-    result = run_cli("lerobot-iupe-relabel", *relabel_args(checkpoint, stripped))
+    result = run_in_process("lerobot-iupe-relabel", *relabel_args(checkpoint, stripped), check=True)
     assert "frames/s" in result.stdout
     dataset = LeRobotDataset(f"local/{stripped.name}", root=stripped)
     feature = dataset.meta.features["action"]
@@ -84,11 +84,12 @@ def test_relabelled_state_dataset_matches_the_true_actions(cartpole_run, data_di
 
 def test_bc_on_a_relabelled_cartpole_dataset_reaches_475(cartpole_run, cartpole_random, data_dir, tmp_path):
     _, stripped = labelled_and_stripped(data_dir, "cartpole-bc", "--env.type=cartpole", "--episodes=10")
-    run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, stripped))
+    run_in_process("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, stripped), check=True)
     out = tmp_path / "bc"
-    run_cli(
+    run_in_process(
         "lerobot-train",
         *train_args(stripped, cartpole_random, out, "--steps=300", "--batch_size=128", "--policy.supervised=true"),
+        check=True,
     )
     result = evaluate_checkpoint(out / CHECKPOINT, CartPoleEnvConfig(), episodes=20)  # lerobot-eval's path, no videos
     assert result["avg_sum_reward"] >= 475
@@ -109,7 +110,9 @@ def test_overwrite_replaces_existing_actions(cartpole_run, data_dir, tmp_path):
     copy = tmp_path / "copy"
     LeRobotDataset("local/x", root=labelled)  # the dataset loads before the copy is relabelled
     subprocess.run(["cp", "-r", str(labelled), str(copy)], check=True)
-    result = run_cli("lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, copy, "--overwrite=true"))
+    result = run_in_process(
+        "lerobot-iupe-relabel", *relabel_args(cartpole_run / CHECKPOINT, copy, "--overwrite=true"), check=True
+    )
     assert "agreement" in result.stdout
     assert LeRobotDataset("local/copy", root=copy).meta.features["action"]["info"]["mode"] == "argmax"
 
@@ -200,11 +203,15 @@ def test_video_dataset_is_relabelled_in_streaming_batches(maze_run, data_dir):
     _, stripped = labelled_and_stripped(data_dir, "maze3-relabel", "--env.type=maze", "--env.size=3", "--episodes=3")
     videos_before = {k: v for k, v in tree_digest(stripped).items() if k.startswith("videos/")}
     args = relabel_args(maze_run / CHECKPOINT, stripped, "--dataset.video_backend=pyav", "--batch_size=4")
-    dry_a = run_cli("lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true").stdout
-    dry_b = run_cli("lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true").stdout
+    dry_a = run_in_process(
+        "lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true", check=True
+    ).stdout
+    dry_b = run_in_process(
+        "lerobot-iupe-relabel", *args, "--mode=sample", "--seed=3", "--dry_run=true", check=True
+    ).stdout
     shares = [[line for line in out.splitlines() if line.startswith("  actions")] for out in (dry_a, dry_b)]
     assert shares[0] and shares[0] == shares[1]  # same seed, same label statistics
-    run_cli("lerobot-iupe-relabel", *args)
+    run_in_process("lerobot-iupe-relabel", *args, check=True)
     dataset = LeRobotDataset(f"local/{stripped.name}", root=stripped, video_backend="pyav")
     assert dataset.meta.features["action"]["dtype"] == "int64"
     frame = dataset[1]
@@ -217,7 +224,7 @@ def test_png_frame_dataset_is_relabelled_and_keeps_its_frames(maze_run, data_dir
         data_dir, "maze3-png-relabel", "--env.type=maze", "--env.size=3", "--episodes=2", "--video=false"
     )
     before = stored_frames(LeRobotDataset(f"local/{stripped.name}", root=stripped), "observation.image")
-    run_cli("lerobot-iupe-relabel", *relabel_args(maze_run / CHECKPOINT, stripped, "--batch_size=4"))
+    run_in_process("lerobot-iupe-relabel", *relabel_args(maze_run / CHECKPOINT, stripped, "--batch_size=4"), check=True)
     dataset = LeRobotDataset(f"local/{stripped.name}", root=stripped)
     assert dataset.meta.features["observation.image"]["dtype"] == "image"
     assert np.array_equal(stored_frames(dataset, "observation.image"), before)
@@ -261,7 +268,7 @@ def test_kill_9_after_the_copy_is_written_loses_nothing(maze_run, maze_random, d
     assert "relabelled_by" in read_iupe_meta(root.parent / staged[0])  # the copy was complete
     assert tree_digest(root) == before
     LeRobotDataset("local/maze-random", root=root, video_backend="pyav")[0]
-    run_cli("lerobot-iupe-relabel", *args)  # the next run cleans up the dead run's staged copy
+    run_in_process("lerobot-iupe-relabel", *args, check=True)  # the next run cleans up the dead run's staged copy
     assert hidden_siblings(root) == []
     assert "relabelled_by" in json.loads((root / "meta" / "iupe.json").read_text())
 
@@ -302,10 +309,10 @@ def test_one_writer_per_dataset_a_second_relabel_or_collect_stops_at_once(cartpo
     try:
         assert any(line.strip() == "writing" for line in first.stdout)  # (LeRobot prints its own lines first)
         before = tree_digest(root)
-        second = run_cli("lerobot-iupe-relabel", *args, check=False)
+        second = run_in_process("lerobot-iupe-relabel", *args, check=False)
         assert second.returncode == 2
         assert f"being written by another process (PID {first.pid})" in one_error_line(second)
-        collect = run_cli(
+        collect = run_in_process(
             "lerobot-iupe-collect", "--env.type=cartpole", "--episodes=1", "--overwrite=true",
             f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", check=False,
         )  # fmt: skip

@@ -78,11 +78,11 @@ def write_point_mass(
 
 
 def train_idm(dataset, out, *flags: str, steps: int = 300):
-    run_cli(
+    run_in_process(
         "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{dataset.name}",
         f"--dataset.root={dataset}", "--dataset.video_backend=pyav", f"--output_dir={out}", "--num_workers=0",
         "--policy.device=cpu", "--wandb.enable=false", f"--steps={steps}", f"--save_freq={steps}", "--batch_size=64",
-        *flags,
+        *flags, check=True
     )  # fmt: skip
     return out / CHECKPOINT
 
@@ -189,11 +189,11 @@ def test_lerobot_act_trains_on_the_relabelled_dataset(continuous_idm, work):
     write_point_mass(dataset, episodes=3, seed=2, with_actions=False)
     relabel(continuous_idm, dataset)
     out = work / "act"
-    run_cli(
+    run_in_process(
         "lerobot-train", "--policy.type=act", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
         f"--output_dir={out}", "--steps=3", "--batch_size=4", "--num_workers=0", "--policy.device=cpu",
         "--policy.push_to_hub=false", "--wandb.enable=false", "--policy.chunk_size=5", "--policy.n_action_steps=5",
-        "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64", "--save_freq=3",
+        "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64", "--save_freq=3", check=True
     )  # fmt: skip
     # ACT predicts our 2-D labels and normalises them by stats that are those of the written labels
     config = json.loads((out / CHECKPOINT / "config.json").read_text())

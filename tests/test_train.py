@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import CHECKPOINT, collect, evaluate, run_cli, train_args
+from conftest import CHECKPOINT, collect, evaluate, run_in_process, train_args
 from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 from safetensors.torch import load_file
 from test_loop import build, frame_batch
@@ -98,7 +98,7 @@ def test_bad_training_input_fails_before_training(case, message, cartpole_expert
     if case == "env_mismatch":  # through lerobot-train itself; the other cases where lerobot-train raises them
         out = tmp_path / "train"
         flags = [f"--policy.{k}={json.dumps(v)}" for k, v in policy.items()]
-        result = run_cli("lerobot-train", *train_args(expert, pre, out, "--steps=2", *flags), check=False)
+        result = run_in_process("lerobot-train", *train_args(expert, pre, out, "--steps=2", *flags))
         assert result.returncode != 0 and message in result.stderr + result.stdout
         assert not (out / "checkpoints").exists()
         return
@@ -122,7 +122,7 @@ def test_bco_is_iupe_with_its_switches_off(cartpole_run, cartpole_expert, cartpo
     bco = tmp_path / "bco"
     switches = ["--policy.sampling=false", "--policy.exploration=false", "--policy.attention=false"]
     short = ["--steps=20", "--batch_size=64", "--policy.cycle_steps=10", "--policy.rollout_episodes=4"]
-    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, bco, *short, *switches))
+    run_in_process("lerobot-train", *train_args(cartpole_expert, cartpole_random, bco, *short, *switches), check=True)
     cycles = cycles_of(bco)
     # BCO(α): I_pre plus every transition of the latest rollouts; argmax labels; no attention modules
     assert all(c["sampled_set_size"] > pre_trained_on + 4 for c in cycles)
@@ -138,7 +138,7 @@ def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(
 ):
     labelled = cartpole_labelled
     bc = tmp_path / "bc"
-    run_cli(
+    run_in_process(
         "lerobot-train",
         *train_args(
             labelled,
@@ -149,6 +149,7 @@ def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(
             "--policy.supervised=true",
             "--policy.idm_context=0",
         ),  # fmt: skip
+        check=True,
     )
     assert not (bc / CHECKPOINT / CYCLES_FILE).exists()  # no rollouts, no cycles
     policy = IUPEPolicy.from_pretrained(bc / CHECKPOINT)
@@ -165,7 +166,7 @@ def test_supervised_training_teaches_the_policy_and_the_idm_the_true_actions(
 
 def test_supervised_without_actions_is_refused(cartpole_expert, cartpole_random, tmp_path):
     out = tmp_path / "bc"
-    result = run_cli(
+    result = run_in_process(
         "lerobot-train",
         *train_args(cartpole_expert, cartpole_random, out, "--steps=2", "--policy.supervised=true"),
         check=False,
@@ -185,11 +186,15 @@ def test_a_resumed_run_continues_exactly_where_an_uninterrupted_one_would_be(
     args = ["--batch_size=64", "--save_freq=10", "--policy.cycle_steps=4", "--policy.rollout_episodes=4", "--seed=5"]
     args.append(f"--policy.ema_decay={decay}")
     whole = tmp_path / "whole"
-    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, whole, "--steps=20", *args))
+    run_in_process(
+        "lerobot-train", *train_args(cartpole_expert, cartpole_random, whole, "--steps=20", *args), check=True
+    )
     parts = tmp_path / "parts"
-    run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, parts, "--steps=10", *args))
+    run_in_process(
+        "lerobot-train", *train_args(cartpole_expert, cartpole_random, parts, "--steps=10", *args), check=True
+    )
     config = parts / CHECKPOINT / "train_config.json"
-    run_cli("lerobot-train", f"--config_path={config}", "--resume=true", "--steps=20")
+    run_in_process("lerobot-train", f"--config_path={config}", "--resume=true", "--steps=20", check=True)
     # same cycle boundaries, rollout seeds, successes and selections (a worse cycle keeps the earlier selection)
     assert without_timing(cycles_of(parts)) == without_timing(cycles_of(whole))
     assert [c["step"] for c in cycles_of(whole)] == [4, 8, 12, 16, 20]
@@ -203,9 +208,9 @@ def test_policy_path_fine_tunes_a_new_run_with_the_env_flags_given_now(
     out = tmp_path / "fine-tune"
     args = train_args(cartpole_expert, cartpole_random, out, "--steps=20", "--policy.cycle_steps=10")
     args = [a for a in args if a != "--policy.type=iupe"]
-    result = run_cli(
+    result = run_in_process(
         "lerobot-train", f"--policy.path={cartpole_run / CHECKPOINT}", "--env.type=cartpole",
-        "--env.episode_length=100", "--policy.rollout_episodes=4", "--batch_size=64", *args,
+        "--env.episode_length=100", "--policy.rollout_episodes=4", "--batch_size=64", *args, check=True,
     )  # fmt: skip
     assert "continuing from" not in result.stdout + result.stderr
     cycles = cycles_of(out)
@@ -220,7 +225,7 @@ def test_lerobot_seed_drives_iupe_unless_the_policy_seed_is_given(cartpole_exper
     def train(name: str, *extra: str) -> Path:
         out = tmp_path / name
         short = ["--steps=8", "--batch_size=64", "--policy.cycle_steps=4", "--policy.rollout_episodes=2"]
-        run_cli("lerobot-train", *train_args(cartpole_expert, cartpole_random, out, *short, *extra))
+        run_in_process("lerobot-train", *train_args(cartpole_expert, cartpole_random, out, *short, *extra), check=True)
         return out
 
     def rollout_seeds(run: Path) -> list[int]:
