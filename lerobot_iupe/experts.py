@@ -108,7 +108,8 @@ def maze_expert(env: gym.Env, observation: dict) -> int:
 
 
 def env_expert(env: gym.Env, observation: dict) -> np.ndarray:
-    """The expert an env carries itself (``expert_action``): LunarLander's heuristic, SO-101's scripted controller."""
+    """The expert an env carries itself (``expert_action``): LunarLander's heuristic, SO-101's and Meta-World's
+    scripted controllers."""
     return env.get_wrapper_attr("expert_action")()
 
 
@@ -121,11 +122,11 @@ def random_agent(env: gym.Env, observation: dict) -> int | np.ndarray:
 
 
 def env_play(env: gym.Env, observation: dict) -> np.ndarray:
-    """The goal-agnostic play agent an env carries itself (``play_action``): SO-101's."""
+    """The goal-agnostic play agent an env carries itself (``play_action``): SO-101's, Meta-World's."""
     return env.get_wrapper_attr("play_action")()
 
 
-PLAY_AGENTS = {"so101_pickplace": env_play}
+PLAY_AGENTS = {"so101_pickplace": env_play, "metaworld_state": env_play}
 
 
 @cache
@@ -153,6 +154,7 @@ def make_agent(env_type: str, agent: str) -> Agent:
         "maze": lambda: maze_expert,
         "lunarlander": lambda: env_expert,
         "so101_pickplace": lambda: env_expert,
+        "metaworld_state": lambda: env_expert,
     }
     if env_type not in experts:
         raise ValueError(f"no built-in expert for env type {env_type!r}; expected one of {sorted(experts)}")

@@ -7,8 +7,11 @@ Examples:
         --dataset.repo_id=local/maze5-random --dataset.root=data/maze5-random --seed=1000
     lerobot-iupe-collect --env.type=so101_pickplace --agent=random --episodes=100 \
         --dataset.repo_id=local/so101-random --dataset.root=data/so101-random --seed=1000
-Env types: cartpole, acrobot, mountaincar, maze (discrete actions, int64 ids), lunarlander, so101_pickplace
-(continuous actions, float32 with the env's action names).
+    lerobot-iupe-collect --env.type=metaworld_state --env.task=push-v3 --agent=expert --episodes=10 \
+        --dataset.repo_id=local/push-expert --dataset.root=data/push-expert
+Env types: cartpole, acrobot, mountaincar, maze (discrete actions, int64 ids), lunarlander, so101_pickplace,
+metaworld_state (continuous actions, float32 with the env's action names; Meta-World tasks by --env.task).
+Agents: expert, random, and play (goal-agnostic play: so101_pickplace, metaworld_state).
 Expert datasets carry no `action` column unless --keep_actions=true; random datasets always carry it.
 """
 

@@ -1,0 +1,132 @@
+"""Meta-World through LeRobot's own env, observed as state: the experts' state-only datasets, the play agent,
+an IUPE checkpoint under lerobot-eval, and a wrong task name."""
+
+import json
+import os
+import subprocess
+
+import numpy as np
+import pytest
+from conftest import BIN, CHECKPOINT, collect, evaluate, run_in_process, train_args, train_once
+from lerobot.datasets import LeRobotDataset
+
+from lerobot_iupe.data.storage import read_iupe_meta
+from lerobot_iupe.envs.configs import METAWORLD_MT10, MetaWorldStateEnvConfig
+from lerobot_iupe.experts import make_agent
+
+TASK = "--env.task=push-v3"
+
+
+@pytest.fixture(scope="module")
+def push_expert(data_dir):
+    return collect(data_dir, "mw-push-expert", "--env.type=metaworld_state", TASK, "--agent=expert", "--episodes=3")
+
+
+@pytest.fixture(scope="module")
+def push_play(data_dir):
+    return collect(
+        data_dir, "mw-push-play", "--env.type=metaworld_state", TASK, "--env.episode_length=100", "--agent=play",
+        "--episodes=4", "--seed=1000",
+    )  # fmt: skip
+
+
+def test_expert_episodes_are_stored_without_actions_and_every_one_succeeds(push_expert):
+    dataset = LeRobotDataset("local/mw-push-expert", root=push_expert)
+    assert "action" not in dataset.features
+    features = dataset.meta.features
+    assert tuple(features["observation.environment_state"]["shape"]) == (39,)
+    assert features["observation.environment_state"]["names"][36:] == ["goal.x", "goal.y", "goal.z"]
+    assert features["observation.state"]["names"] == ["hand.x", "hand.y", "hand.z", "gripper.opening"]
+    meta = read_iupe_meta(push_expert)
+    assert meta["success_rate"] == 1.0 and meta["env"] == {"type": "metaworld_state", "task": "push-v3",
+                                                           "episode_length": 500}  # fmt: skip
+    ends = np.cumsum(dataset.meta.episodes["length"]) - 1
+    assert [bool(dataset[int(i)]["next.success"]) for i in ends] == [True] * 3
+    assert all(length < 200 for length in dataset.meta.episodes["length"])  # an episode ends at its first success
+    state = np.stack([dataset[i]["observation.environment_state"].numpy() for i in range(3)])
+    assert np.allclose(state[:, :4], np.stack([dataset[i]["observation.state"].numpy() for i in range(3)]))
+
+
+def test_the_state_variant_steps_where_mujoco_cannot_render(tmp_path):
+    """The collect command as a process with MuJoCo's OpenGL switched off: nothing in it may render."""
+    root = tmp_path / "reach"
+    result = subprocess.run(
+        [str(BIN / "lerobot-iupe-collect"), "--env.type=metaworld_state", "--env.task=reach-v3", "--agent=expert",
+         "--episodes=1", "--dataset.repo_id=local/reach", f"--dataset.root={root}"],
+        capture_output=True, text=True, env={**os.environ, "MUJOCO_GL": "disable"}, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert read_iupe_meta(root)["success_rate"] == 1.0
+
+
+@pytest.mark.parametrize("task", METAWORLD_MT10)
+def test_each_mt10_expert_succeeds_and_play_does_not_by_chance(task):
+    env = MetaWorldStateEnvConfig(task=task).make()
+    expert, play = make_agent("metaworld_state", "expert"), make_agent("metaworld_state", "play")
+    observation, _ = env.reset(seed=7)
+    for _ in range(500):
+        observation, _, terminated, truncated, info = env.step(expert(env, observation))
+        if terminated or truncated:
+            break
+    assert terminated and info["is_success"]
+    observation, _ = env.reset(seed=7)
+    hands, grasps = [], []
+    for _ in range(200):
+        action = play(env, observation)
+        observation, _, terminated, truncated, info = env.step(action)
+        hands.append(observation["agent_pos"][:3])
+        grasps.append(action[3])
+    env.close()
+    hands = np.stack(hands)
+    assert (hands.max(0) - hands.min(0))[:2].min() > 0.1  # play moves the hand across the table
+    assert min(grasps) < 0 < max(grasps)  # and both opens and shuts the gripper
+
+
+def test_play_reads_the_hand_only():
+    """Two episodes whose object and goal differ (their seeds) played from the same generator: the same actions."""
+    actions, goals = [], []
+    for seed in (1, 2):
+        env = MetaWorldStateEnvConfig(task="pick-place-v3").make()
+        observation, _ = env.reset(seed=seed)
+        goals.append(observation["environment_state"][36:])
+        env.unwrapped.np_random = np.random.default_rng(0)
+        play, played = make_agent("metaworld_state", "play"), []
+        for _ in range(30):
+            played.append(play(env, observation))
+            observation = env.step(played[-1])[0]
+        actions.append(np.stack(played))
+        env.close()
+    assert not np.allclose(goals[0], goals[1])
+    assert np.allclose(actions[0], actions[1], atol=1e-5)
+
+
+def test_lerobot_eval_scores_an_iupe_checkpoint_on_the_state_variant(push_expert, push_play, shared_dir, tmp_path):
+    out = shared_dir / "runs" / "mw-push"
+    flags = ["--steps=4", "--batch_size=16", "--save_freq=4", "--policy.cycle_steps=2", "--policy.rollout_episodes=1",
+             "--policy.selection_episodes=1", "--policy.idm_epochs=1", "--env.type=metaworld_state", TASK,
+             "--env.episode_length=50"]  # fmt: skip
+    run = train_once(out, *train_args(push_expert, push_play, out, *flags))
+    config = json.loads((run / CHECKPOINT / "config.json").read_text())
+    assert config["env_settings"] == {"type": "metaworld_state", "task": "push-v3", "episode_length": 50}
+    overall = evaluate(run / CHECKPOINT, tmp_path / "eval", "--env.type=metaworld_state", TASK, episodes=2)
+    assert overall["n_episodes"] == 2 and 0.0 <= overall["pc_success"] <= 100.0
+    assert len(list((tmp_path / "eval" / "videos").rglob("*.mp4"))) == 2  # lerobot-eval's videos: the sketch
+
+
+def test_a_wrong_task_name_is_one_line_naming_the_flag_and_the_tasks(tmp_path):
+    root = tmp_path / "data"
+    result = run_in_process(
+        "lerobot-iupe-collect", "--env.type=metaworld_state", "--env.task=push-v2", "--agent=expert", "--episodes=1",
+        "--dataset.repo_id=local/x", f"--dataset.root={root}",
+    )  # fmt: skip
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    line = result.stderr.strip().splitlines()[-1]
+    assert "--env.task" in line and "'push-v2'" in line and "push-v3" in line and "peg-insert-side-v3" in line
+    assert not root.exists()
+
+
+def test_the_env_names_a_wrong_task_for_lerobot_eval_too():
+    from lerobot_iupe.envs.metaworld import MetaWorldStateEnv
+
+    with pytest.raises(ValueError, match="--env.task: 'metaworld-push-v2' is not a Meta-World task"):
+        MetaWorldStateEnv(task="metaworld-push-v2")
