@@ -10,7 +10,7 @@ import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
 
 from lerobot_iupe.benchmark import CONTINUOUS, PRESETS, Benchmark, Run, method_flags, read_training_run
-from lerobot_iupe.benchmark.report import _cell, plot_results
+from lerobot_iupe.benchmark.report import _cell, metaworld_section, plot_results
 
 LAYOUTS = ("demo", "heldout")
 
@@ -184,6 +184,25 @@ def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):
 def test_cells_give_the_sample_standard_deviation_over_seeds():
     rows = [{"P": p, "AER": 10 * p} for p in (0.0, 1.0, 2.0)]
     assert _cell(rows) == "1.000 ± 1.000 / 10.000 ± 10.000 (n=3)"  # ddof = 1 (ddof = 0 would give 0.816)
+
+
+def test_the_metaworld_table_gives_success_per_task_over_seeds_with_the_other_papers_rows_apart():
+    def row(env, method, seed, rate):
+        return {"table": "metaworld", "env": env, "method": method, "seed": seed, "eval_mode": "argmax",
+                "success_rate": rate}  # fmt: skip
+
+    records = [row("mw-push", "iupe", s, r) for s, r in enumerate((0.5, 0.7, 0.6))]
+    records += [row("mw-reach", "iupe", 0, 1.0), row("mw-push", "bc", 0, 0.9), row("mw-reach", "bc", 0, 0.8)]
+    records += [{**row("mw-push", "expert", None, 1.0), "eval_mode": None}]
+    lines = metaworld_section(records, ["expert", "bc", "bco", "iupe"])
+    table = [line for line in lines if line.startswith("| ")]
+    assert table[0] == "| method | reach | push | mean |"  # MT10's order, only the tasks run
+    assert "| IUPE (ours) | 100 | 60 ± 10 (n=3) | 80.0 |" in table  # a task's mean first, then over tasks
+    assert "| BC (ours) | 80 | 90 | 85.0 |" in table
+    assert "| Expert (ours) | – | 100 | – |" in table  # no mean over a task it has no row for
+    assert not any(line.startswith("| BCO(α)") for line in table)  # a method never run has no row
+    assert "| DP3 (other paper's protocol) | 24 | 51 | 37.5 |" in table
+    assert metaworld_section([r for r in records if r["table"] != "metaworld"], ["iupe"]) == []
 
 
 def test_run_labels_script_names_a_missing_runs_folder_and_writes_nothing(tmp_path):

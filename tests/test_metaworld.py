@@ -11,7 +11,7 @@ from conftest import BIN, CHECKPOINT, collect, evaluate, run_in_process, train_a
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.data.storage import read_iupe_meta
-from lerobot_iupe.envs.configs import METAWORLD_MT10, MetaWorldStateEnvConfig
+from lerobot_iupe.envs.metaworld_config import METAWORLD_MT10, MetaWorldStateEnvConfig
 from lerobot_iupe.experts import make_agent
 
 TASK = "--env.task=push-v3"

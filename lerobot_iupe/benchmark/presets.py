@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from lerobot.envs.configs import EnvConfig
 
 from lerobot_iupe.envs.configs import env_cli_flags, env_config_from_settings
+from lerobot_iupe.envs.metaworld_config import METAWORLD_MT10
 
 # The paper's Table 1 (P, AER) and Table 2 (Maze 10×10, P, AER).
 PAPER_TABLE1 = {
@@ -219,6 +220,30 @@ CONTINUOUS = {
         methods=("bco", "iupe"),
     ),
 }
+# Meta-World's MT10 through LeRobot's own env, observed as state (--env.type=metaworld_state): 10 scripted-expert
+# demonstrations per task, as the 3D Diffusion Policy paper; 20 play episodes (10,000 transitions) of
+# pre-demonstrations; 1,000 steps, a cycle every 200 with 10 rollout and 10 selection episodes (IUPE on push: its
+# selection success rose 0.2 -> 0.6 over the first four cycles). Scored by the mode, lerobot-eval's default rule.
+METAWORLD_POLICY = {"rollout_episodes": "10", "selection_episodes": "10"}
+METAWORLD = {
+    f"mw-{task.removesuffix('-v3')}": EnvPreset(
+        {"type": "metaworld_state", "task": task},
+        DataSettings(10, 20, pre_demos_agent="play"),
+        TrainBudget(1000, 64, 200, METAWORLD_POLICY),
+        eval_modes=("argmax",),
+    )
+    for task in METAWORLD_MT10
+}
+# Other papers' success rates (%) on these tasks, under their own protocols: the 3D Diffusion Policy paper (Ze et al.,
+# 2024, Table XVIII; 10 scripted demonstrations, 3 seeds, the mean of its 5 best evaluations of 20 episodes): DP3 from
+# point clouds and Diffusion Policy from images, both with the expert's actions.
+METAWORLD_ANCHORS = {
+    "DP3": {"reach": 24, "push": 51, "pick-place": 12, "door-open": 99, "drawer-open": 100, "drawer-close": 100,
+            "button-press-topdown": 100, "peg-insert-side": 69, "window-open": 100, "window-close": 100},
+    "Diffusion Policy (images)": {"reach": 18, "push": 30, "pick-place": 0, "door-open": 98, "drawer-open": 93,
+                                  "drawer-close": 100, "button-press-topdown": 98, "peg-insert-side": 34,
+                                  "window-open": 100, "window-close": 100},
+}  # fmt: skip
 # Low data: one expert episode and about 1,000 pre-demonstration transitions.
 LOW_DATA_CONTINUOUS_METHODS = ["bco", "iupe"]
 LOW_DATA = {

@@ -1,5 +1,6 @@
 """lerobot-iupe-benchmark: the paper's Table 1 (Expert, Random, BC, BCO(α), IUPE, ILPO on CartPole, Acrobot,
-MountainCar, Maze 3×3/5×5/10×10), its Table 2 (the ablation on Maze 10×10) and a low-data table.
+MountainCar, Maze 3×3/5×5/10×10), its Table 2 (the ablation on Maze 10×10), a low-data table, continuous actions
+(LunarLander, SO-101) and Meta-World's MT10 (LeRobot's own Meta-World env, observed as state).
 
 Each trained method goes through `lerobot-train`; evaluation is LeRobot's own (`eval_policy_all`, as in
 `lerobot-eval`) on seeds never used in training. Runs are recorded as they finish in <work>/runs.jsonl, so an
@@ -10,6 +11,8 @@ Examples:
     lerobot-iupe-benchmark --tables table1 ablation lowdata
     lerobot-iupe-benchmark --envs cartpole acrobot --seeds 0 1 2
     lerobot-iupe-benchmark --tables table1 --jobs 2         # two runs at a time, one thread each
+    lerobot-iupe-benchmark --tables metaworld --envs mw-push mw-reach --methods bc bco iupe ilpo \
+        --eval_episodes 50 --jobs 2 --work outputs/metaworld --out benchmarks/metaworld
     lerobot-iupe-benchmark --quick                          # smoke test: CartPole + Maze 3×3, tiny budgets
     lerobot-iupe-benchmark --tables ablation --from benchmarks   # fresh clone: train only what results.json lacks
 """
@@ -25,6 +28,7 @@ from lerobot_iupe.benchmark import (
     CONTINUOUS,
     LOW_DATA,
     LOW_DATA_METHODS,
+    METAWORLD,
     PRESETS,
     TABLE1_METHODS,
     Benchmark,
@@ -44,18 +48,21 @@ def positive_int(text: str) -> int:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
-        "--tables", nargs="+", default=["table1"], choices=["table1", "ablation", "lowdata", "continuous"],
+        "--tables", nargs="+", default=["table1"],
+        choices=["table1", "ablation", "lowdata", "continuous", "metaworld"],
         help="continuous: LunarLander and SO-101 (all Table 1 methods; SO-101 from uniformly random "
-        "pre-demonstrations, so101_uniform: BCO(α) and IUPE) and LunarLander's low-data row",
+        "pre-demonstrations, so101_uniform: BCO(α) and IUPE) and LunarLander's low-data row; metaworld: MT10's ten "
+        "tasks (mw-push, …) observed as state, 10 expert demonstrations each, success by the mode",
     )  # fmt: skip
     parser.add_argument(
-        "--envs", nargs="+", default=[*PRESETS, *CONTINUOUS], choices=[*PRESETS, *CONTINUOUS],
-        help="envs of every table (Table 1 and the ablation: %(default)s minus the continuous ones)",
+        "--envs", nargs="+", default=[*PRESETS, *CONTINUOUS, *METAWORLD], choices=[*PRESETS, *CONTINUOUS, *METAWORLD],
+        help="envs of every table (each table runs those of its own among them)",
     )  # fmt: skip
     parser.add_argument(
         "--methods", nargs="+", choices=METHODS,
-        help=f"methods of Table 1 and the continuous table (default: {' '.join(METHODS)}; the continuous table runs "
-        "ILPO (ilpo: as the authors' code; ilpo_norm: with --policy.normalize=true) only when named here)",
+        help=f"methods of Table 1, the continuous and the metaworld tables (default: {' '.join(METHODS)}; the "
+        "continuous and metaworld tables run ILPO (ilpo: as the authors' code; ilpo_norm: with "
+        "--policy.normalize=true) only when named here)",
     )  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="training seeds per cell")
     parser.add_argument(
@@ -107,6 +114,9 @@ def main() -> None:
                 preset = LOW_DATA[env]
                 methods = preset.compared(continuous_methods)
                 requests.append(dict(table="lowdata", name=env, preset=preset, methods=methods))
+        if "metaworld" in args.tables:
+            for env in (e for e in METAWORLD if e in args.envs):
+                requests.append(dict(table="metaworld", name=env, preset=METAWORLD[env], methods=continuous_methods))
         if "ablation" in args.tables:
             # BCO(α) and IUPE are Table 1's Maze 10×10 runs (same data, preset and seeds): run or reuse them.
             requests.append(dict(table="table1", name="maze10", preset=PRESETS["maze10"], methods=["bco", "iupe"]))

@@ -11,6 +11,7 @@ goal-agnostic play agent for pre-demonstrations, as the package's other envs do.
 from __future__ import annotations
 
 import os
+import threading
 import warnings
 
 if not os.environ.get("DISPLAY"):  # MuJoCo picks its OpenGL backend when first imported: offscreen EGL headless
@@ -20,7 +21,7 @@ import numpy as np  # noqa: E402
 from gymnasium import spaces  # noqa: E402
 from lerobot.envs.metaworld import MetaworldEnv  # noqa: E402
 
-from lerobot_iupe.envs.configs import check_metaworld_task  # noqa: E402
+from lerobot_iupe.envs.metaworld_config import check_metaworld_task  # noqa: E402
 
 OBSERVATION_SIZE = 39
 # Where play moves the hand: Meta-World's hand range (metaworld.sawyer_xyz_env's default hand_low / hand_high,
@@ -29,6 +30,9 @@ PLAY_LOW, PLAY_HIGH = np.array([-0.3, 0.4, 0.05]), np.array([0.3, 0.9, 0.3])
 PLAY_MAX_STEPS_PER_TARGET = 40
 PLAY_PAUSE = (0.2, (5, 15))  # chance that the next move is a pause where the hand is, and the pause's steps
 PLAY_GRASP_HOLD = (5, 30)  # steps a gripper command is held
+# Meta-World draws its task list from NumPy's global generator (seeding it, then restoring it): two threads building
+# envs at once drew interleaved values ("Only generated 49 unique goals, not 50").
+_BUILDING = threading.Lock()
 # The sketch render() draws: the table's x (left-right) and y (away from the robot) in metres, and its pixels.
 SKETCH_LOW, SKETCH_HIGH, SKETCH_SIZE = np.array([-0.5, 0.3]), np.array([0.5, 1.0]), 96
 
@@ -52,6 +56,10 @@ class MetaWorldStateEnv(MetaworldEnv):
         )
         self._observation = np.zeros(OBSERVATION_SIZE)
         self._play: dict = {}
+
+    def _ensure_env(self) -> None:
+        with _BUILDING:
+            super()._ensure_env()
 
     def _format_raw_obs(self, raw_obs: np.ndarray) -> dict[str, np.ndarray]:
         self._observation = np.asarray(raw_obs, dtype=np.float64)

@@ -1,0 +1,101 @@
+"""LeRobot env type ``metaworld_state``: one Meta-World task through LeRobot's own Meta-World env, observed as state
+(the env itself: ``envs/metaworld.py``, imported only when an env is made, since it imports MuJoCo)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import cache
+from importlib.resources import files
+from typing import ClassVar
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from lerobot_iupe.envs.configs import GYM_NAMESPACE, IUPEEnvConfig
+
+# Meta-World's MT10 (Yu et al., 2019), the ten tasks the package reports: LeRobot names no such group.
+METAWORLD_MT10 = (
+    "reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
+    "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3",
+)  # fmt: skip
+METAWORLD_OBJECT = ("x", "y", "z", "qw", "qx", "qy", "qz")
+
+
+@cache
+def metaworld_tasks() -> tuple[str, ...]:
+    """Meta-World's task names as LeRobot's ``metaworld`` env lists them (its ``metaworld_config.json``), read
+    without importing Meta-World and MuJoCo."""
+    config = json.loads(files("lerobot.envs").joinpath("metaworld_config.json").read_text())
+    return tuple(config["TASK_DESCRIPTIONS"])
+
+
+def check_metaworld_task(task: str | None) -> None:
+    """Raise a ValueError naming ``--env.task`` and the valid names unless ``task`` is a Meta-World task."""
+    if task not in metaworld_tasks():
+        raise ValueError(
+            f"--env.task: {task!r} is not a Meta-World task; expected a <task>-v3 name, one of "
+            f"{', '.join(metaworld_tasks())} (MT10: {', '.join(METAWORLD_MT10)})"
+        )
+
+
+def _metaworld_frame_names(prefix: str) -> tuple[str, ...]:
+    objects = (f"{prefix}object{i}.{part}" for i in (1, 2) for part in METAWORLD_OBJECT)
+    return (f"{prefix}hand.x", f"{prefix}hand.y", f"{prefix}hand.z", f"{prefix}gripper.opening", *objects)
+
+
+@EnvConfig.register_subclass("metaworld_state")
+@dataclass
+class MetaWorldStateEnvConfig(IUPEEnvConfig):
+    """One Meta-World task (``--env.task=push-v3``; MT10: ``METAWORLD_MT10``) through LeRobot's own Meta-World env,
+    observed as state and never rendered: ``agent_pos`` (hand xyz, gripper opening) → ``observation.state`` and
+    Meta-World's 39 values (hand, gripper, two objects, the previous frame's same 18, goal) →
+    ``observation.environment_state``. Action: hand motion (×1 cm) and gripper effort, each in [-1, 1]. An episode
+    ends at its first success, as in LeRobot's ``metaworld`` env type; object and goal positions come from the
+    episode's seed."""
+
+    task: str | None = "push-v3"
+    STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {
+        "agent_pos": ("hand.x", "hand.y", "hand.z", "gripper.opening"),
+        "environment_state": (
+            *_metaworld_frame_names(""),
+            *_metaworld_frame_names("previous."),
+            "goal.x",
+            "goal.y",
+            "goal.z",
+        ),  # fmt: skip
+    }
+    fps: int = 80
+    episode_length: int = 500  # Meta-World's own limit
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {
+            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(4,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(4,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(39,)),
+        }
+    )
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
+    )
+    action_names: tuple[str, ...] = ("dx", "dy", "dz", "grasp")
+
+    @property
+    def gym_id(self) -> str:
+        return f"{GYM_NAMESPACE}/MetaWorldState-v0"
+
+    @property
+    def max_episode_steps(self) -> int:
+        return self.episode_length
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {"task": self.task, "max_episode_steps": self.episode_length}
+
+    def validate(self) -> None:
+        check_metaworld_task(self.task)
+        if not 1 <= self.episode_length <= 500:
+            raise ValueError(f"--env.episode_length must be between 1 and Meta-World's 500, got {self.episode_length}")
+
+    def settings(self) -> dict:
+        return {"type": self.type, "task": self.task, "episode_length": self.episode_length}
