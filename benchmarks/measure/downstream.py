@@ -6,7 +6,8 @@ episodes (`--policy.supervised=true`), both evaluated by LeRobot's evaluation lo
         [--seeds 0 1 2]
 
 so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both;
-so101_relative also gives the block and goal seen from the end effector (`--env.relative_positions=true`).
+so101_relative also gives the block and goal seen from the end effector (`--env.relative_positions=true`);
+metaworld_push is Meta-World's push observed as state (`--env.type=metaworld_state`).
 
 Writes the rows (env, policy, labels, seed, success_rate, …) into benchmarks/relabel.json under "downstream" and
 renders benchmarks/relabel.md. Evaluation is `eval_policy_all`, what `lerobot-eval` runs, without its video
@@ -43,6 +44,7 @@ ENVS = {  # name -> (expert episodes, IDM steps, ACT steps)
     "so101_pickplace": (50, 2000, 1500),
     "so101_camera": (50, 2000, 1500),
     "so101_relative": (50, 2000, 1500),
+    "metaworld_push": (50, 2000, 1500),
 }
 # The env settings of each name: SO-101 with its front camera (64 px) and its state, no block or goal positions;
 # SO-101 with the block and goal also seen from the end effector.
@@ -51,6 +53,7 @@ ENV_SETTINGS = {
     "so101_pickplace": {"type": "so101_pickplace"},
     "so101_camera": {"type": "so101_pickplace", "image_obs": True, "image_size": 64},
     "so101_relative": {"type": "so101_pickplace", "relative_positions": True},
+    "metaworld_push": {"type": "metaworld_state", "task": "push-v3"},
 }
 # A CPU-sized ACT (LeRobot's defaults are for 480-px cameras): 10-step chunks, 128-wide transformer.
 ACT_FLAGS = [

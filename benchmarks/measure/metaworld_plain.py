@@ -9,16 +9,19 @@ on the same 50 episodes (seeds 500000…) through the same env: benchmarks/metaw
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 from lerobot.datasets import LeRobotDataset
-from steps import command_line, write_page
 
 from lerobot_iupe.benchmark import EVAL_SEED, METAWORLD
 from lerobot_iupe.data.readers import column_array
 from lerobot_iupe.envs.configs import env_config_from_settings
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line, write_page  # noqa: E402
 
 KEYS = ("observation.state", "observation.environment_state")
 
