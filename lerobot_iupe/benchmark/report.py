@@ -109,7 +109,7 @@ REPRODUCE = {
 def metaworld_section(records: list[dict], methods: list[str]) -> list[str]:
     """Meta-World's success rates (%, by the mode) per task and their mean, with other papers' figures below."""
     envs = [e for e in METAWORLD if _group(records, table="metaworld", env=e)]
-    tasks = [ENV_NAMES[e] for e in envs]
+    tasks, methods = [ENV_NAMES[e] for e in envs], [m for m in methods if _group(records, table="metaworld", method=m)]
     lines = [
         "", "## Meta-World (state: the 39 values), success rate % by the mode (lerobot-eval's rule)", "",
         "Mean ± sample standard deviation over training seeds (n = seeds). 10 scripted-expert demonstrations per "
