@@ -77,6 +77,16 @@ def _vector_features(state_dim: int) -> dict[str, PolicyFeature]:
 
 
 VECTOR_FEATURES_MAP = {ACTION: ACTION, "agent_pos": OBS_STATE}
+STATE_ENV_FEATURES_MAP = {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
+
+
+def state_env_features(action_dim: int, state_dim: int, env_dim: int) -> dict[str, PolicyFeature]:
+    """A continuous ``Box`` action, ``agent_pos`` (→ observation.state) and ``environment_state``."""
+    return {
+        ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(action_dim,)),
+        "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(state_dim,)),
+        "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(env_dim,)),
+    }
 
 
 @dataclass
@@ -200,16 +210,8 @@ class LunarLanderEnvConfig(ClassicEnvConfig):
     }
     fps: int = 50
     episode_length: int = 1000
-    features: dict[str, PolicyFeature] = field(
-        default_factory=lambda: {
-            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(2,)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(6,)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(2,)),
-        }
-    )
-    features_map: dict[str, str] = field(
-        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
-    )
+    features: dict[str, PolicyFeature] = field(default_factory=lambda: state_env_features(2, 6, 2))
+    features_map: dict[str, str] = field(default_factory=lambda: dict(STATE_ENV_FEATURES_MAP))
     action_names: tuple[str, ...] = ("main_engine", "lateral_engines")
 
 
@@ -240,16 +242,8 @@ class SO101PickPlaceEnvConfig(ClassicEnvConfig):
     episode_length: int = 300
     action_scale: float = 0.025
     random_block_position: bool = True
-    features: dict[str, PolicyFeature] = field(
-        default_factory=lambda: {
-            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(4,)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(14,)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(6,)),
-        }
-    )
-    features_map: dict[str, str] = field(
-        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
-    )
+    features: dict[str, PolicyFeature] = field(default_factory=lambda: state_env_features(4, 14, 6))
+    features_map: dict[str, str] = field(default_factory=lambda: dict(STATE_ENV_FEATURES_MAP))
     action_names: tuple[str, ...] = ("dx", "dy", "dz", "grasp")
     # The front camera (image_size × image_size RGB) → observation.images.front, in place of environment_state (the
     # plugin's image observation: the block and goal are then seen, not read). Rendered by MuJoCo offscreen (EGL).

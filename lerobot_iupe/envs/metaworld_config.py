@@ -9,11 +9,10 @@ from functools import cache
 from importlib.resources import files
 from typing import ClassVar
 
-from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.configs import PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
-from lerobot_iupe.envs.configs import GYM_NAMESPACE, IUPEEnvConfig
+from lerobot_iupe.envs.configs import GYM_NAMESPACE, STATE_ENV_FEATURES_MAP, ClassicEnvConfig, state_env_features
 
 # Meta-World's MT10 (Yu et al., 2019), the ten tasks the package reports: LeRobot names no such group.
 METAWORLD_MT10 = (
@@ -47,7 +46,7 @@ def _metaworld_frame_names(prefix: str) -> tuple[str, ...]:
 
 @EnvConfig.register_subclass("metaworld_state")
 @dataclass
-class MetaWorldStateEnvConfig(IUPEEnvConfig):
+class MetaWorldStateEnvConfig(ClassicEnvConfig):
     """One Meta-World task (``--env.task=push-v3``; MT10: ``METAWORLD_MT10``) through LeRobot's own Meta-World env,
     observed as state and never rendered: ``agent_pos`` (hand xyz, gripper opening) → ``observation.state`` and
     Meta-World's 39 values (hand, gripper, two objects, the previous frame's same 18, goal) →
@@ -68,16 +67,8 @@ class MetaWorldStateEnvConfig(IUPEEnvConfig):
     }
     fps: int = 80
     episode_length: int = 500  # Meta-World's own limit
-    features: dict[str, PolicyFeature] = field(
-        default_factory=lambda: {
-            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(4,)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(4,)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(39,)),
-        }
-    )
-    features_map: dict[str, str] = field(
-        default_factory=lambda: {ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
-    )
+    features: dict[str, PolicyFeature] = field(default_factory=lambda: state_env_features(4, 4, 39))
+    features_map: dict[str, str] = field(default_factory=lambda: dict(STATE_ENV_FEATURES_MAP))
     action_names: tuple[str, ...] = ("dx", "dy", "dz", "grasp")
 
     @property
@@ -85,12 +76,8 @@ class MetaWorldStateEnvConfig(IUPEEnvConfig):
         return f"{GYM_NAMESPACE}/MetaWorldState-v0"
 
     @property
-    def max_episode_steps(self) -> int:
-        return self.episode_length
-
-    @property
     def gym_kwargs(self) -> dict:
-        return {"task": self.task, "max_episode_steps": self.episode_length}
+        return {**super().gym_kwargs, "task": self.task}
 
     def validate(self) -> None:
         check_metaworld_task(self.task)
@@ -98,4 +85,4 @@ class MetaWorldStateEnvConfig(IUPEEnvConfig):
             raise ValueError(f"--env.episode_length must be between 1 and Meta-World's 500, got {self.episode_length}")
 
     def settings(self) -> dict:
-        return {"type": self.type, "task": self.task, "episode_length": self.episode_length}
+        return {**super().settings(), "task": self.task}
