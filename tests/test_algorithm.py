@@ -21,7 +21,7 @@ N_ACTIONS = 3
 def make_transitions(actions, tag: float) -> Transitions:
     actions = np.asarray(actions, dtype=np.int64)
     states = np.stack([np.full(len(actions), tag), np.arange(len(actions)) * 1.0], axis=1)
-    return Transitions(states, actions, states + 1.0)
+    return Transitions.pairs(states, actions, states + 1.0)
 
 
 @pytest.fixture
@@ -114,7 +114,7 @@ def test_alignment_of_rollout_transitions_is_kept(pre):
     rng = np.random.default_rng(0)
     actions = rng.integers(0, 2, 50)
     positions = np.concatenate([[0], np.cumsum(np.where(actions == 1, 1, -1))]).astype(float)
-    rollout = Transitions(positions[:-1, None], actions, positions[1:, None])
+    rollout = Transitions.pairs(positions[:-1, None], actions, positions[1:, None])
     sampled = build_sampled_set(pre, rollout, np.array([0.5, 0.5, 0.0]), 40, rng)
     delta = sampled.next_states[:, 0] - sampled.states[:, 0]
     assert np.array_equal(delta, np.where(sampled.actions == 1, 1.0, -1.0))
@@ -197,3 +197,13 @@ def test_the_model_is_selected_on_episodes_played_as_lerobot_eval_plays_them():
     assert IUPEConfig(supervised=True, selection_episodes=5).separate_selection_episodes == 5
     with pytest.raises(ValueError, match="--policy.selection_episodes"):
         IUPEConfig(selection_episodes=-1)
+
+
+def test_an_episode_s_windows_repeat_its_first_and_last_frames():
+    observations = np.arange(4.0)[:, None]  # s_0 … s_3: three actions
+    pairs = Transitions.of_episode(observations, np.arange(3), context=0)
+    assert pairs.windows[:, :, 0].tolist() == [[0, 1], [1, 2], [2, 3]] and pairs.context == 0
+    windows = Transitions.of_episode(observations, np.arange(3), context=1)
+    assert windows.windows[:, :, 0].tolist() == [[0, 0, 1, 2], [0, 1, 2, 3], [1, 2, 3, 3]]
+    assert windows.states[:, 0].tolist() == [0, 1, 2] and windows.next_states[:, 0].tolist() == [1, 2, 3]
+    assert windows.take(np.array([2])).windows[0, :, 0].tolist() == [1, 2, 3, 3]

@@ -16,7 +16,7 @@ def clustered_actions(counts, rng, tag: float) -> Transitions:
     """Actions scattered tightly around the four corners, ``counts[i]`` around corner i."""
     actions = np.concatenate([CORNERS[i] + rng.normal(0, 0.02, (n, 2)) for i, n in enumerate(counts)])
     states = np.stack([np.full(len(actions), tag), np.arange(len(actions), dtype=float)], axis=1)
-    return Transitions(states, actions.astype(np.float32), states + 1.0)
+    return Transitions.pairs(states, actions.astype(np.float32), states + 1.0)
 
 
 @pytest.fixture

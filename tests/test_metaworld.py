@@ -102,12 +102,27 @@ def test_play_reads_the_hand_only():
 
 def test_lerobot_eval_scores_an_iupe_checkpoint_on_the_state_variant(push_expert, push_play, shared_dir, tmp_path):
     out = shared_dir / "runs" / "mw-push"
-    flags = ["--steps=4", "--batch_size=16", "--save_freq=4", "--policy.cycle_steps=2", "--policy.rollout_episodes=1",
-             "--policy.selection_episodes=1", "--policy.idm_epochs=1", "--env.type=metaworld_state", TASK,
-             "--env.episode_length=50"]  # fmt: skip
+    flags = [
+        "--steps=4",
+        "--batch_size=16",
+        "--save_freq=4",
+        "--policy.cycle_steps=2",
+        "--policy.rollout_episodes=1",
+        "--policy.selection_episodes=1",
+        "--policy.idm_epochs=1",
+        "--env.type=metaworld_state",
+        TASK,
+        "--env.episode_length=50",
+        "--policy.idm_context=3",
+        "--policy.idm_observation_keys=[observation.state]",
+    ]
     run = train_once(out, *train_args(push_expert, push_play, out, *flags))
     config = json.loads((run / CHECKPOINT / "config.json").read_text())
     assert config["env_settings"] == {"type": "metaworld_state", "task": "push-v3", "episode_length": 50}
+    # the cycle ran on windows of the hand's state (the benchmark's setting): two cycles, the IDM scored on them
+    assert config["idm_context"] == 3 and config["idm_observation_keys"] == ["observation.state"]
+    cycles = [json.loads(line) for line in (run / CHECKPOINT / "iupe_cycles.jsonl").read_text().splitlines()]
+    assert len(cycles) == 2 and all(np.isfinite(c["idm_r2"]) for c in cycles)
     overall = evaluate(run / CHECKPOINT, tmp_path / "eval", "--env.type=metaworld_state", TASK, episodes=2)
     assert overall["n_episodes"] == 2 and 0.0 <= overall["pc_success"] <= 100.0
     assert len(list((tmp_path / "eval" / "videos").rglob("*.mp4"))) == 2  # lerobot-eval's videos: the sketch

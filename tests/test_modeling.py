@@ -4,8 +4,10 @@ import torch
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 
-from lerobot_iupe.data.readers import ExpertFrames, column_array
+from lerobot_iupe.data.readers import ExpertFrames, column_array, load_transitions
+from lerobot_iupe.data.transitions import Transitions, context_offsets
 from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
+from lerobot_iupe.policy.idm_fit import fit_idm
 from lerobot_iupe.policy.networks import SpatialSelfAttention, TokenSelfAttention
 
 
@@ -105,6 +107,51 @@ def test_expert_frames_give_successive_states_by_frame_index(cartpole_expert):
         expert.pairs(expert.rows(torch.tensor([first_episode_end - 1])))
     with pytest.raises(KeyError, match="not in the expert dataset"):
         expert.rows(torch.tensor([len(states)]))
+
+
+def test_pre_demonstration_windows_are_the_rollouts_and_the_expert_windows(cartpole_random):
+    """One window rule for the IDM's three sources: a dataset read by load_transitions, an episode played
+    (Transitions.of_episode) and the expert frames it labels (ExpertFrames.transition_windows)."""
+    dataset = LeRobotDataset("local/cartpole-random", root=cartpole_random)
+    states = column_array(dataset.hf_dataset, "observation.state")
+    actions = column_array(dataset.hf_dataset, "action").reshape(-1)
+    episodes = dataset.meta.episodes
+    bounds = list(zip(episodes["dataset_from_index"], episodes["dataset_to_index"], strict=True))
+    loaded = load_transitions(dataset, "observation.state", context=2)
+    played = Transitions.concat([Transitions.of_episode(states[a:b], actions[a : b - 1], 2) for a, b in bounds])
+    assert loaded.windows.shape == (len(states) - len(bounds), 6, 4)
+    assert np.array_equal(loaded.windows, played.windows) and np.array_equal(loaded.actions, played.actions)
+    expert = ExpertFrames(dataset, "observation.state", with_actions=False, device=torch.device("cpu"))
+    a, b = bounds[0]
+    rows = np.array([0, b - 2, b])  # an episode's first frame, its last with a successor, the next one's first
+    windows = expert.transition_windows(rows, context_offsets(2)).numpy()
+    assert np.array_equal(windows, loaded.windows[[0, b - 2, b - 1]])
+    assert np.array_equal(windows[1], states[[b - 4, b - 3, b - 2, b - 1, b - 1, b - 1]])  # edges repeat, never cross
+
+
+def test_a_windowed_idm_in_the_cycle_reads_an_action_that_shows_one_step_late():
+    """fit_idm on windowed transitions: where a_t first moves s_{t+2}, the pair (s_t, s_{t+1}) labels it at chance
+    and the window t-1 … t+2 labels it exactly."""
+    rng = np.random.default_rng(0)
+
+    def lagged_episodes(context: int) -> Transitions:
+        episodes = []
+        for _ in range(40):
+            actions = rng.integers(0, 2, size=50)
+            moves = np.r_[0.0, 2.0 * actions[:-1] - 1.0]  # s_{t+1} - s_t = the previous step's action
+            observations = np.zeros((51, 4), dtype=np.float32)
+            observations[1:, 0] = np.cumsum(moves)
+            observations[:, 1:] = rng.normal(size=(51, 3))
+            episodes.append(Transitions.of_episode(observations, actions, context))
+        return Transitions.concat(episodes)
+
+    scores = {}
+    for context in (0, 1):
+        torch.manual_seed(0)
+        policy = make_policy(image=False, idm_context=context, idm_epochs=8, idm_batch_size=64)
+        optimizer = torch.optim.Adam(policy.idm_parameters(), lr=3e-3)
+        _, scores[context] = fit_idm(policy, optimizer, lagged_episodes(context), lagged_episodes(context), rng)
+    assert scores[0] < 0.65 and scores[1] > 0.95, scores
 
 
 def test_unknown_eval_mode_is_refused_naming_the_flag():

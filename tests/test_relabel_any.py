@@ -285,8 +285,6 @@ def test_incompatible_fps_and_action_names_are_refused_naming_both_sides(continu
     assert before == {p: p.read_bytes() for p in discrete.rglob("*") if p.is_file()}
 
 
-def test_a_window_needs_supervised_training():
-    with pytest.raises(ValueError, match="--policy.supervised=true"):
-        IUPEConfig(idm_context=2)
+def test_a_negative_window_is_refused_naming_the_flag():
     with pytest.raises(ValueError, match="--policy.idm_context"):
         IUPEConfig(idm_context=-1, supervised=True)

@@ -48,17 +48,20 @@ LOW_DATA_METHODS = ["bco", "S", "E", "SE", "iupe"]
 
 @dataclass(frozen=True)
 class TrainBudget:
-    """lerobot-train's budget of a trained method; ``policy`` holds further ``--policy.*`` settings, and
-    ``sampling_policy`` those of the methods whose sampling is on (settings of the sampling rule)."""
+    """lerobot-train's budget of a trained method; ``policy`` holds further ``--policy.*`` settings,
+    ``sampling_policy`` those of the methods whose sampling is on (settings of the sampling rule), and
+    ``labelling_policy`` those of the methods whose policy learns from the IDM's labels (all but BC)."""
 
     steps: int
     batch_size: int
     cycle_steps: int
     policy: dict[str, str] = field(default_factory=dict)
     sampling_policy: dict[str, str] = field(default_factory=dict)
+    labelling_policy: dict[str, str] = field(default_factory=dict)
 
-    def flags(self, sampling: bool = True) -> list[str]:
+    def flags(self, sampling: bool = True, labelling: bool = True) -> list[str]:
         policy = {**self.policy, **(self.sampling_policy if sampling else {})}
+        policy.update(self.labelling_policy if labelling else {})
         return [
             f"--steps={self.steps}",
             f"--batch_size={self.batch_size}",
@@ -224,12 +227,17 @@ CONTINUOUS = {
 # demonstrations per task, as the 3D Diffusion Policy paper; 20 play episodes (10,000 transitions) of
 # pre-demonstrations; 1,000 steps, a cycle every 200 with 10 rollout and 10 selection episodes (IUPE on push: its
 # selection success rose 0.2 -> 0.6 over the first four cycles). Scored by the mode, lerobot-eval's default rule.
+# The methods that label with an IDM read the hand's state (agent_pos) over frames t-3 … t+4: the hand follows a
+# command 3-4 steps late, and play never moves the objects. On push the cycle's first IDM (trained on play) labels
+# the expert's hand moves x/y/z at R² 0.89/0.84/0.36 so, against 0.42/0.23/0.15 reading the pair of all 43 values
+# (benchmarks/cycle_context.md).
 METAWORLD_POLICY = {"rollout_episodes": "10", "selection_episodes": "10"}
+METAWORLD_LABELLING = {"idm_context": "3", "idm_observation_keys": "[observation.state]"}
 METAWORLD = {
     f"mw-{task.removesuffix('-v3')}": EnvPreset(
         {"type": "metaworld_state", "task": task},
         DataSettings(10, 20, pre_demos_agent="play"),
-        TrainBudget(1000, 64, 200, METAWORLD_POLICY),
+        TrainBudget(1000, 64, 200, METAWORLD_POLICY, labelling_policy=METAWORLD_LABELLING),
         eval_modes=("argmax",),
     )
     for task in METAWORLD_MT10

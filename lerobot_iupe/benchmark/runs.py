@@ -62,7 +62,7 @@ class Run:
             if self.preset.rollout_layouts and not self.quick:
                 policy["rollout_layouts"] = str(self.preset.rollout_layouts)
             return [f"--batch_size={ILPO_BATCH}", *[f"--policy.{k}={v}" for k, v in policy.items()]]
-        return [*self.budget.flags(samples(self.method)), *method_flags(self.method)]
+        return [*self.budget.flags(samples(self.method), self.method != "bc"), *method_flags(self.method)]
 
     @property
     def steps(self) -> int:

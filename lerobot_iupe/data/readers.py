@@ -17,7 +17,7 @@ from torch import Tensor
 from lerobot_iupe.data.episodes import EpisodeFrames, column_array, episode_bounds, layout_shapes
 from lerobot_iupe.data.frame_cache import cached_frames
 from lerobot_iupe.data.observation import ObservationLayout
-from lerobot_iupe.data.transitions import Transitions
+from lerobot_iupe.data.transitions import Transitions, context_offsets
 
 
 def dataset_layout(meta: LeRobotDatasetMetadata, keys: list[str]) -> ObservationLayout:
@@ -160,14 +160,20 @@ def load_transitions(
     keys: str | list[str],
     video_backend: str = "pyav",
     layout: ObservationLayout | None = None,
+    context: int = 0,
 ) -> Transitions:
-    """All (s_t, a_t, s_{t+1}) of a dataset with actions, in memory; images kept as uint8 (N, C, H, W), cameras
-    at ``layout``'s working resolution (default: as stored)."""
+    """Every a_t of a dataset with actions that has a successor frame, with its window of ``context`` (frames
+    t-k … t+1+k, clamped into its episode), in memory; images kept as uint8, cameras at ``layout``'s working
+    resolution (default: as stored)."""
     episodes = column_array(dataset.hf_dataset, "episode_index")
     actions = action_array(dataset)
     states = observation_array(dataset, keys, video_backend, layout)
-    has_next = np.flatnonzero(episodes[:-1] == episodes[1:])
-    return Transitions(states[has_next], actions[has_next], states[has_next + 1])
+    starts = np.flatnonzero(np.r_[True, episodes[1:] != episodes[:-1]])
+    lengths = np.diff(np.r_[starts, len(episodes)])
+    first, last = np.repeat(starts, lengths), np.repeat(starts + lengths - 1, lengths)
+    has_next = np.flatnonzero(np.arange(len(episodes)) < last)
+    windows = window_indices(has_next, context_offsets(context), first[has_next], last[has_next])
+    return Transitions(states[windows], actions[has_next])
 
 
 def window_indices(t: np.ndarray, offsets: list[int], first: np.ndarray, last: np.ndarray) -> np.ndarray:
@@ -225,9 +231,14 @@ class ExpertFrames:
         windows = torch.from_numpy(np.ascontiguousarray(values[index]))
         return windows if self.states.device is None else windows.to(self.states.device)
 
-    def pairs(self, rows: np.ndarray) -> tuple[Tensor, Tensor]:
-        """(s_t, s_{t+1}) of these rows; LeRobot's sampler never draws an episode's last frame
-        (``drop_n_last_frames = 1``)."""
+    def transition_windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
+        """Frames (B, len(offsets), …) around rows that have a successor; LeRobot's sampler never draws an episode's
+        last frame (``drop_n_last_frames = 1``)."""
         if rows.max() + 1 >= len(self.episodes) or (self.episodes[rows] != self.episodes[rows + 1]).any():
             raise ValueError("a batch frame is the last of its episode (it has no successor)")
-        return self.states[rows], self.states[rows + 1]
+        return self.windows(rows, offsets)
+
+    def pairs(self, rows: np.ndarray) -> tuple[Tensor, Tensor]:
+        """(s_t, s_{t+1}) of rows that have a successor (``transition_windows``)."""
+        state, next_state = self.transition_windows(rows, [0, 1]).unbind(1)
+        return state, next_state

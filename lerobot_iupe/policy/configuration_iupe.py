@@ -48,7 +48,9 @@ class IUPEConfig(ObservationPolicyConfig):
     # Measured on SO-101 BC: benchmarks/findings.md.
     binary_action_dims: list[int] = field(default_factory=list)
     # The IDM sees frames t-k … t+1+k to label a_t (k = idm_context; 0 = the pair (s_t, s_{t+1}) of the paper).
-    # Edges repeat an episode's first or last frame. k > 0 needs --policy.supervised=true (labelled windows).
+    # Edges repeat an episode's first or last frame. In the IUPE cycle the pre-demonstrations, the rollouts and the
+    # expert frames the IDM labels are all read as such windows: where an action shows in the state only some steps
+    # later (Meta-World's hand lags its command by 3-4 steps), the pair cannot tell it (benchmarks/findings.md).
     # None = 1 when supervised (best overall in benchmarks/relabel.md), else 0; resolved when training starts, so
     # config.json records it (a checkpoint saved before this option existed reads as 0).
     idm_context: int | None = None
@@ -141,11 +143,6 @@ class IUPEConfig(ObservationPolicyConfig):
                 f"--policy.joint_state_columns={self.joint_state_columns} makes the IDM read {OBS_STATE} alone, but "
                 f"--policy.idm_observation_keys={self.idm_observation_keys}: pass --policy.joint_state_columns=[] for "
                 "an IDM of those keys"
-            )
-        if self.idm_context and not self.supervised:
-            raise ValueError(
-                f"--policy.idm_context={self.idm_context} needs --policy.supervised=true: the IUPE cycle's "
-                "pre-demonstrations and rollouts are single transitions (s_t, a_t, s_{t+1})"
             )
         if self.n_obs_steps < 1:
             raise ValueError(f"--policy.n_obs_steps must be 1 or more observations, got {self.n_obs_steps}")

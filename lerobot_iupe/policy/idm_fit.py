@@ -28,7 +28,7 @@ def fit_idm(
         rng.shuffle(train)
         for start in range(0, len(train), config.idm_batch_size):
             idx = train[start : start + config.idm_batch_size]
-            output = policy.idm_output(to(data.states[idx]), to(data.next_states[idx]))
+            output = policy.idm_window_output(to(data.windows[idx]))
             loss = policy.idm_head.loss(output, to(data.actions[idx]))
             optimizer.zero_grad()
             loss.backward()
@@ -40,7 +40,7 @@ def fit_idm(
         predicted = []
         for start in range(0, len(held_out), 1024):
             part = held_out.take(np.arange(start, min(start + 1024, len(held_out))))
-            output = policy.idm_output(to(part.states), to(part.next_states))
+            output = policy.idm_window_output(to(part.windows))
             predicted.append(policy.idm_head.mode(output).cpu().numpy())
     policy.train()
     if not predicted:  # a single pre-demonstration transition: nothing to hold out

@@ -273,8 +273,9 @@ class IUPEPolicy(PreTrainedPolicy):
             return self.pm_head.as_float_action(self.pm_head.choose(output, self.config.eval_mode == "sample"))
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """One PM step on the batch's frames: s_t and s_{t+1} come from the in-memory expert data by the batch's
-        frame ``index``; labels are the IDM's (or, with ``supervised``, the dataset's true actions)."""
+        """One PM step on the batch's frames: s_t and the IDM's window around it (s_{t+1}, or with idm_context k
+        s_{t-k} … s_{t+1+k}) come from the in-memory expert data by the batch's frame ``index``; labels are the
+        IDM's (or, with ``supervised``, the dataset's true actions)."""
         if "index" not in batch:
             raise ValueError("IUPE's forward needs the batch's frame 'index' (as LeRobot's dataset loader gives it)")
         if self.trainer is None:
@@ -293,9 +294,8 @@ class IUPEPolicy(PreTrainedPolicy):
                 idm_loss = self.idm_head.loss(self.idm_window_output(window), labels)
             loss = pm_loss + idm_loss
             return loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
-        state, next_state = expert.pairs(rows)
         # first: on the first step it starts (or restores) the cycle
-        labels, spread = self.trainer.labels(state, next_state)
+        labels, spread = self.trainer.labels(expert.transition_windows(rows, self.config.idm_window))
         loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels, spread)
         return loss, {"pm_loss": float(loss.detach()), **self.trainer.stats}
 

@@ -19,8 +19,9 @@ class PolicyRollouts:
     ``push_history``, ``rollout_actions``, ``averaged_weights`` and ``device_of_weights``) in the env set by
     ``use_env``, on the layouts set by ``use_layouts``."""
 
-    def __init__(self, policy: nn.Module):
+    def __init__(self, policy: nn.Module, context: int = 0):
         self.policy, self.config = policy, policy.config
+        self.context = context  # the transitions' windows: frames t-k … t+1+k around each action (Transitions)
         self.envs: list = []  # rollout envs, created once and reused by every cycle
         self.layouts: list[int] = []  # maze: the layout ids rollouts cycle through (--policy.rollout_layouts)
         self.env_cfg = None  # the rollout env
@@ -70,7 +71,8 @@ class PolicyRollouts:
     ) -> tuple[list[Transitions], np.ndarray, np.ndarray, np.ndarray]:
         """The policy model in ``episodes`` envs at once (batched inference), one episode each, env ``i`` seeded
         ``seed + i`` (mazes: the expert dataset's layouts in turn); in eval mode (batch-norm statistics kept).
-        Returns each episode's transitions, goal reached (v_e), return and the env's own success.
+        Returns each episode's transitions (windows of ``context``), goal reached (v_e), return and the env's own
+        success.
         Envs are made once by LeRobot's ``make_env`` (any LeRobot env type) and reused by every cycle."""
         policy, device = self.policy, self.policy.device_of_weights
         if len(self.envs) < episodes:
@@ -106,7 +108,7 @@ class PolicyRollouts:
                 actions = np.asarray(episode.actions, dtype=np.float32).reshape(len(episode), -1)
             else:
                 actions = np.asarray(episode.actions, dtype=np.int64)
-            transitions.append(Transitions(observations[:-1], actions, observations[1:]))
+            transitions.append(Transitions.of_episode(observations, actions, self.context))
         successes = np.array([e.goal_reached for e in played])  # v_e: the goal reached at some step
         returns = np.array([e.total_reward for e in played])
         return transitions, successes, returns, np.array([e.success for e in played])

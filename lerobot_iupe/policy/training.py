@@ -2,8 +2,9 @@
 expert batch; ``update()`` after each step is LeRobot's only in-loop hook):
 
 1. ``start`` (first step): check the inputs, load the pre-demonstrations I_pre, I^s = I_pre, train the IDM on it;
-2. ``labels`` (every step): the IDM labels the expert pairs (s_t, s_{t+1}) — one draw per row when exploring, the
-   mode otherwise — and the policy model takes a step on those labels;
+2. ``labels`` (every step): the IDM labels the expert pairs (s_t, s_{t+1}) — or, with ``idm_context`` k, the
+   frames s_{t-k} … s_{t+1+k} — one draw per row when exploring, the mode otherwise, and the policy model takes a
+   step on those labels;
 3. ``end_cycle`` (every ``cycle_steps`` steps): roll out the policy, record (s_t, a_t, s_{t+1}) of the same step
    and whether the goal was reached (``Episode.goal_reached``), select the model by the env's own success and then
    the goal (``algorithm.selects``), rebuild I^s by the sampling rule (or, for BCO(α), I_pre plus the rollouts)
@@ -61,7 +62,8 @@ class IUPETrainer:
         self.state: TrainingState | None = None
         self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
         self.selected_weights: dict[str, Tensor] | None = None  # the model ``algorithm.selects`` kept so far
-        self.rollouts = PolicyRollouts(policy)  # the rollout env (set by check_inputs), its envs and layouts
+        # The rollout env (set by check_inputs), its envs and layouts; transitions windowed as the IDM reads them.
+        self.rollouts = PolicyRollouts(policy, self.config.idm_context or 0)
         self.cells: ActionCells | None = None  # continuous actions: the sampling rule's action classes
         self._expert: ExpertFrames | None = None
         self._joint_fit: JointFit | None = None  # the arm model's fit (supervised, joint actions)
@@ -117,7 +119,7 @@ class IUPETrainer:
         pre_dataset = self.check_inputs()
         self.set_threads()
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
-        pre = load_transitions(pre_dataset, cfg.observation_keys, "pyav", cfg.layout)
+        pre = load_transitions(pre_dataset, cfg.observation_keys, "pyav", cfg.layout, cfg.idm_context or 0)
         if cfg.is_continuous:  # fitted again identically on resume (own seed)
             self.cells = ActionCells.fit(pre.actions, cfg.action_cells, cfg.action_low, cfg.action_high, self.seed)
         # Its own stream, so that a resumed run holds out the same transitions without saving them.
@@ -209,16 +211,17 @@ class IUPETrainer:
 
     # ------------------------------------------------------------ 2. every step
 
-    def labels(self, state: Tensor, next_state: Tensor) -> tuple[Tensor, Tensor | None]:
-        """The IDM's labels of expert pairs, in eval mode (batch-norm layers keep their statistics), and their
-        spread: what the policy model's loss takes (``head.labels``)."""
+    def labels(self, window: Tensor) -> tuple[Tensor, Tensor | None]:
+        """The IDM's labels of expert windows (B, 2k+2, …: frames t-k … t+1+k; k = 0 the pair), in eval mode
+        (batch-norm layers keep their statistics), and their spread: what the policy model's loss takes
+        (``head.labels``)."""
         if self.state is None:
             self.start()
         policy = self.policy
         was_training = policy.training
         policy.eval()
         with torch.no_grad():
-            output = policy.idm_output(state, next_state)
+            output = policy.idm_window_output(window)
         policy.train(was_training)
         head = policy.idm_head
         drawn = head.choose(output, self.config.exploration, self.state.torch_rng)

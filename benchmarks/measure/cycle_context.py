@@ -1,0 +1,120 @@
+"""The IUPE cycle's first IDM against its window k and the keys it reads, on Meta-World: trained as the cycle trains
+it (``fit_idm`` on the play pre-demonstrations I_pre, 10 epochs of batch 256), then scored by R² on the expert's
+own actions (the benchmark's expert dataset collected with them), every transition of the 10 episodes, by action
+dimension too (hand x, y, z, grasp); beside it a ridge regression per dimension on the same windows and data, the
+simplest fit to beat. Means over seeds.
+
+    python benchmarks/measure/cycle_context.py --work outputs/metaworld [--tasks push pick-place] [--ks 0 1 2 3 4]
+
+Reads the datasets the Meta-World benchmark collected under ``<work>/data``; writes benchmarks/cycle_context.md
+and .json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.datasets import LeRobotDataset
+from lerobot.policies.factory import make_policy
+from lerobot.utils.constants import OBS_STATE
+
+from lerobot_iupe.data.readers import load_transitions
+from lerobot_iupe.policy import IUPEConfig
+from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.idm_fit import fit_idm
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line, write_page  # noqa: E402
+
+KEYS = {"all": None, "state": [OBS_STATE]}
+
+
+def dataset(work: Path, task: str, kind: str) -> LeRobotDataset:
+    (root,) = sorted((work / "data").glob(f"mw-{task}-*-{kind}"))
+    return LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
+
+
+def ridge_r2(train_x: np.ndarray, train_y: np.ndarray, test_x: np.ndarray, test_y: np.ndarray) -> float:
+    """Ridge (λ = 1e-3 · n on standardised inputs) from flattened windows [s_t, s_j − s_t] to the action."""
+
+    def features(windows: np.ndarray, k: int) -> np.ndarray:
+        s = windows[:, k : k + 1]
+        return np.concatenate([s, np.delete(windows, k, axis=1) - s], axis=1).reshape(len(windows), -1)
+
+    k = (train_x.shape[1] - 2) // 2
+    a, b = features(train_x, k), features(test_x, k)
+    mean, std = a.mean(0), a.std(0) + 1e-6
+    a, b = np.c_[(a - mean) / std, np.ones(len(a))], np.c_[(b - mean) / std, np.ones(len(b))]
+    weights = np.linalg.solve(a.T @ a + 1e-3 * len(a) * np.eye(a.shape[1]), a.T @ train_y)
+    return r_squared(b @ weights, test_y)
+
+
+def measure(work: Path, task: str, k: int, keys: str, seed: int) -> dict:
+    pre, expert = dataset(work, task, "random"), dataset(work, task, "expert-actions")
+    config = IUPEConfig(
+        pre_demos_repo_id=pre.repo_id, pre_demos_root=str(pre.root), idm_context=k, idm_observation_keys=KEYS[keys],
+        device="cpu",
+    )  # fmt: skip
+    torch.manual_seed(seed)
+    policy = make_policy(config, ds_meta=expert.meta)
+    read = config.idm_keys
+    train = load_transitions(pre, config.observation_keys, context=k)
+    test = load_transitions(expert, config.observation_keys, context=k)
+    optimizer = torch.optim.Adam(policy.idm_parameters(), lr=config.idm_lr)
+    _, r2 = fit_idm(policy, optimizer, train, test, np.random.default_rng(seed))
+    policy.eval()
+    with torch.no_grad():
+        labels = policy.idm_head.mode(policy.idm_window_output(torch.as_tensor(test.windows))).numpy()
+    columns = policy.layout.indices(config.observation_keys.index(key) for key in read)
+    ridge = [
+        ridge_r2(train.windows[..., columns], train.actions[:, [d]], test.windows[..., columns], test.actions[:, [d]])
+        for d in range(test.actions.shape[1])
+    ]
+    by_dimension = [r_squared(labels[:, d], test.actions[:, d]) for d in range(test.actions.shape[1])]
+    return {
+        "task": task, "k": k, "keys": keys, "seed": seed, "idm_r2": r2, "idm_r2_by_dimension": by_dimension,
+        "ridge_r2": float(np.mean(ridge)), "ridge_r2_by_dimension": ridge,
+    }  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--work", type=Path, default=Path("outputs/metaworld"))
+    parser.add_argument("--out", default="benchmarks")
+    parser.add_argument("--tasks", nargs="+", default=["push", "pick-place", "peg-insert-side"])
+    parser.add_argument("--ks", nargs="+", type=int, default=[0, 1, 2, 3, 4])
+    parser.add_argument("--keys", nargs="+", default=list(KEYS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    rows = []
+    for task in args.tasks:
+        for keys in args.keys:
+            for k in args.ks:
+                for seed in args.seeds:
+                    rows.append(measure(args.work, task, k, keys, seed))
+                    print(json.dumps(rows[-1]), flush=True)
+    table = [
+        "| task | IDM reads | k | IDM R² | its x / y / z / grasp | ridge R² | its x / y / z / grasp |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for task in args.tasks:
+        for keys in args.keys:
+            for k in args.ks:
+                same = [r for r in rows if (r["task"], r["keys"], r["k"]) == (task, keys, k)]
+                cells = []
+                for fit in ("idm", "ridge"):
+                    dims = np.mean([r[f"{fit}_r2_by_dimension"] for r in same], axis=0)
+                    cells += [f"{np.mean([r[f'{fit}_r2'] for r in same]):.2f}", " / ".join(f"{v:.2f}" for v in dims)]
+                table.append(f"| {task} | {keys} | {k} | {' | '.join(cells)} |")
+    title = "The IUPE cycle's first IDM on Meta-World: its window k and the keys it reads"
+    write_page(Path(args.out), "cycle_context", command_line(), rows, title, __doc__.split("\n\n")[0], table)
+
+
+if __name__ == "__main__":
+    main()
