@@ -10,6 +10,7 @@ import matplotlib.image
 from conftest import CHECKPOINT, run_cli, run_in_process
 
 from lerobot_iupe.benchmark import CONTINUOUS, PRESETS, Benchmark, Run, method_flags, read_training_run
+from lerobot_iupe.benchmark.presets import METAWORLD
 from lerobot_iupe.benchmark.report import _cell, metaworld_section, plot_results
 
 LAYOUTS = ("demo", "heldout")
@@ -168,6 +169,12 @@ def test_records_are_keyed_by_everything_that_determines_them():
     assert uniform.data_key(quick=False) != play.data_key(quick=False)
     everything = ["expert", "random", "bc", "bco", "iupe"]
     assert uniform.compared(everything) == ["bco", "iupe"] and play.compared(everything) == everything
+    # Meta-World's IDM window and keys reach the learners that label with an IDM, and BC's rows stay
+    push = METAWORLD["mw-push"]
+    flags = {m: Run("metaworld", "mw-push", push, m, 0, {}, {}).train_flags for m in ("bc", "bco", "iupe")}
+    for method in ("bco", "iupe"):
+        assert {"--policy.idm_context=3", "--policy.idm_observation_keys=[observation.state]"} <= set(flags[method])
+    assert not any("idm_" in f for f in flags["bc"]) and "--policy.selection_episodes=10" in flags["bc"]
 
 
 def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):

@@ -50,7 +50,8 @@ class IUPEConfig(ObservationPolicyConfig):
     # The IDM sees frames t-k … t+1+k to label a_t (k = idm_context; 0 = the pair (s_t, s_{t+1}) of the paper).
     # Edges repeat an episode's first or last frame. In the IUPE cycle the pre-demonstrations, the rollouts and the
     # expert frames the IDM labels are all read as such windows: where an action shows in the state only some steps
-    # later (Meta-World's hand lags its command by 3-4 steps), the pair cannot tell it (benchmarks/findings.md).
+    # later (Meta-World's hand lags its command by 3-4 steps), the pair cannot tell it (benchmarks/cycle_context.md).
+    # The cycle holds its transitions as windows in memory: k + 1 times the frames of pairs.
     # None = 1 when supervised (best overall in benchmarks/relabel.md), else 0; resolved when training starts, so
     # config.json records it (a checkpoint saved before this option existed reads as 0).
     idm_context: int | None = None
