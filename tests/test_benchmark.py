@@ -177,6 +177,21 @@ def test_records_are_keyed_by_everything_that_determines_them():
     assert not any("idm_" in f for f in flags["bc"]) and "--policy.selection_episodes=10" in flags["bc"]
 
 
+def test_a_play_setting_changes_the_rows_of_the_learners_that_read_pre_demonstrations_only():
+    """Meta-World's play holds commands (--env.play_held_moves, pre-demonstrations only): the learners that read
+    the pre-demonstrations get new datasets and rows; BC, ILPO and the built-in agents keep theirs."""
+    push = METAWORLD["mw-push"]
+    before = dataclasses.replace(push, data=dataclasses.replace(push.data, pre_demos_env={}))
+    assert push.data_key(quick=False) == before.data_key(quick=False) == "ff3c9e4b2b"  # the committed rows' key
+    assert push.pre_demos_key(quick=False) != push.data_key(quick=False)
+    assert before.pre_demos_key(quick=False) == before.data_key(quick=False)
+    assert "--env.play_held_moves=0.5" in push.pre_demos_flags() and not any("play" in f for f in push.env_flags())
+    for method in ("expert", "random", "bc", "ilpo", "bco", "iupe"):
+        run = Run("metaworld", "mw-push", push, method, None if method in ("expert", "random") else 0, {}, {})
+        unchanged = run.config_key(50) == dataclasses.replace(run, preset=before).config_key(50)
+        assert unchanged == (method in ("expert", "random", "bc", "ilpo")), method
+
+
 def test_cycles_are_read_from_the_checkpoint_records(cartpole_run):
     checkpoint = cartpole_run / CHECKPOINT
     log = "INFO step:25 smpl:3K ep:5 epch:0.1 loss:0.6 grdn:1 lr:1e-03 updt_s:0.010 data_s:0.100\n"

@@ -39,7 +39,7 @@ def test_expert_episodes_are_stored_without_actions_and_every_one_succeeds(push_
     assert features["observation.state"]["names"] == ["hand.x", "hand.y", "hand.z", "gripper.opening"]
     meta = read_iupe_meta(push_expert)
     assert meta["success_rate"] == 1.0 and meta["env"] == {"type": "metaworld_state", "task": "push-v3",
-                                                           "episode_length": 500}  # fmt: skip
+                                                           "episode_length": 500, "play_held_moves": 0.5}  # fmt: skip
     ends = np.cumsum(dataset.meta.episodes["length"]) - 1
     assert [bool(dataset[int(i)]["next.success"]) for i in ends] == [True] * 3
     assert all(length < 200 for length in dataset.meta.episodes["length"])  # an episode ends at its first success
@@ -82,6 +82,31 @@ def test_each_mt10_expert_succeeds_and_play_does_not_by_chance(task):
     assert min(grasps) < 0 < max(grasps)  # and both opens and shuts the gripper
 
 
+def play_commands(held_moves: float, steps: int = 300) -> np.ndarray:
+    env = MetaWorldStateEnvConfig(task="reach-v3", play_held_moves=held_moves).make()
+    observation, _ = env.reset(seed=3)
+    play, commands = make_agent("metaworld_state", "play"), []
+    for _ in range(steps):
+        action = play(env, observation)
+        commands.append(action[:3])
+        observation, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:  # reach can succeed by chance: play on from a new episode
+            observation, _ = env.reset()
+    env.close()
+    return np.stack(commands)
+
+
+def test_held_moves_keep_a_command_at_the_bounds_as_the_experts_do():
+    """Held moves (``--env.play_held_moves``) keep one hand command for 10-40 steps, often at ±1; moves toward a
+    target (share 0, the first results' play) slow down as they near it and seldom reach the bounds."""
+    held, steered = play_commands(1.0), play_commands(0.0)
+    steady = np.abs(np.diff(held, axis=0)).max(axis=1) < 0.6  # one command plus its N(0, 0.1) noise
+    assert steady.mean() > 0.9
+    assert np.mean(np.abs(held) > 0.95) > 0.2 > 0.05 > np.mean(np.abs(steered) > 0.95)
+    with pytest.raises(ValueError, match="--env.play_held_moves"):
+        MetaWorldStateEnvConfig(task="reach-v3", play_held_moves=1.5).validate()
+
+
 def test_play_reads_the_hand_only():
     """Two episodes whose object and goal differ (their seeds) played from the same generator: the same actions."""
     actions, goals = [], []
@@ -118,7 +143,9 @@ def test_lerobot_eval_scores_an_iupe_checkpoint_on_the_state_variant(push_expert
     ]
     run = train_once(out, *train_args(push_expert, push_play, out, *flags))
     config = json.loads((run / CHECKPOINT / "config.json").read_text())
-    assert config["env_settings"] == {"type": "metaworld_state", "task": "push-v3", "episode_length": 50}
+    assert config["env_settings"] == {
+        "type": "metaworld_state", "task": "push-v3", "episode_length": 50, "play_held_moves": 0.5
+    }  # fmt: skip
     # the cycle ran on windows of the hand's state (the benchmark's setting): two cycles, the IDM scored on them
     assert config["idm_context"] == 3 and config["idm_observation_keys"] == ["observation.state"]
     cycles = [json.loads(line) for line in (run / CHECKPOINT / "iupe_cycles.jsonl").read_text().splitlines()]

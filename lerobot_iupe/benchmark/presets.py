@@ -82,6 +82,9 @@ class DataSettings:
     # The agent of the pre-demonstrations: "random" (uniform actions) or "play" (goal-agnostic play, for envs whose
     # uniform actions never reach the expert's states: lerobot-iupe-collect --agent=play).
     pre_demos_agent: str = "random"
+    # Env settings of the pre-demonstrations' collection only (how the play agent plays): a run that never reads
+    # the pre-demonstrations (BC, ILPO, the built-in agents) keeps its datasets and rows when they change.
+    pre_demos_env: dict = field(default_factory=dict)
 
     def random_flags(self) -> list[str]:
         flags = ["--random_start=true"] if self.random_start else []
@@ -145,6 +148,15 @@ class EnvPreset:
         key = [self.env, data.expert_episodes, data.random_episodes, data.random_flags(), data.data_flags(), quick]
         # the default agent stays out of the hash, so the committed rows of random pre-demonstrations keep their keys
         return digest(key if data.pre_demos_agent == "random" else [*key, data.pre_demos_agent])
+
+    def pre_demos_key(self, quick: bool) -> str:
+        """``data_key`` of the pre-demonstrations, which also depends on ``pre_demos_env``."""
+        data_key = self.data_key(quick)
+        return digest([data_key, self.data.pre_demos_env]) if self.data.pre_demos_env else data_key
+
+    def pre_demos_flags(self) -> list[str]:
+        """lerobot-iupe-collect's flags of the pre-demonstrations: the env's, with ``pre_demos_env`` over them."""
+        return env_cli_flags({**self.env, **self.data.pre_demos_env})
 
 
 def digest(value) -> str:
@@ -232,11 +244,14 @@ CONTINUOUS = {
 # the expert's hand moves x/y/z at R² 0.89/0.84/0.36 so, against 0.42/0.23/0.15 reading the pair of all 43 values
 # (benchmarks/cycle_context.md).
 METAWORLD_POLICY = {"rollout_episodes": "10", "selection_episodes": "10"}
+# Half of play's moves hold one command for 10-40 steps, as the scripted experts do: the cycle's first IDM then
+# labels button-press-topdown's y at R² 0.65 instead of -0.99 (benchmarks/cycle_context.md).
+METAWORLD_PLAY = {"play_held_moves": 0.5}
 METAWORLD_LABELLING = {"idm_context": "3", "idm_observation_keys": "[observation.state]"}
 METAWORLD = {
     f"mw-{task.removesuffix('-v3')}": EnvPreset(
         {"type": "metaworld_state", "task": task},
-        DataSettings(10, 20, pre_demos_agent="play"),
+        DataSettings(10, 20, pre_demos_agent="play", pre_demos_env=METAWORLD_PLAY),
         TrainBudget(1000, 64, 200, METAWORLD_POLICY, labelling_policy=METAWORLD_LABELLING),
         eval_modes=("argmax",),
     )

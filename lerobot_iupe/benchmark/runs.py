@@ -25,10 +25,17 @@ from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 
 
 def config_key(
-    preset: EnvPreset, quick: bool, train_flags: list[str], eval_episodes: int, plays_selection_episodes: bool
+    preset: EnvPreset,
+    quick: bool,
+    train_flags: list[str],
+    eval_episodes: int,
+    plays_selection_episodes: bool,
+    reads_pre_demos: bool = False,
 ) -> str:
-    """Hash of everything that determines a run's rows: datasets, training flags, evaluation."""
-    key = [preset.data_key(quick), train_flags, eval_episodes, preset.eval_modes]
+    """Hash of everything that determines a run's rows: datasets (the pre-demonstrations' only for a run that
+    reads them), training flags, evaluation."""
+    data_key = preset.pre_demos_key(quick) if reads_pre_demos else preset.data_key(quick)
+    key = [data_key, train_flags, eval_episodes, preset.eval_modes]
     if preset.rollout_layouts:  # the evaluated layouts depend on it (also for the built-in agents)
         key.append([preset.scored_episodes(layouts, eval_episodes) for layouts in preset.layouts])
     if plays_selection_episodes:  # rows selected on the exploring rollouts (older code) are not these
@@ -81,7 +88,14 @@ class Run:
         if self.method in ("expert", "random"):
             return agent_config_key(self.preset, self.quick, eval_episodes)
         flags = self.train_flags + ([f"ilpo epochs {ILPO_EPOCHS}"] if self.method in ILPO_VARIANTS else [])
-        return config_key(self.preset, self.quick, flags, eval_episodes, self.plays_selection_episodes)
+        return config_key(
+            self.preset, self.quick, flags, eval_episodes, self.plays_selection_episodes, self.reads_pre_demos
+        )
+
+    @property
+    def reads_pre_demos(self) -> bool:
+        """Whether the run learns from the pre-demonstrations (IUPE and BCO(α)'s IDM), not BC, ILPO or an agent."""
+        return self.method not in ("expert", "random", "bc", *ILPO_VARIANTS)
 
     @property
     def plays_selection_episodes(self) -> bool:
@@ -152,7 +166,7 @@ def training_env_steps(run: Run, checkpoint: Path, cycles: list[dict]) -> dict[s
     online play (IUPE's rollouts, ILPO's remapping) and the episodes played only to select the model. None where
     the cycle records predate the counts."""
     pre = 0
-    if run.method != "bc" and run.method not in ILPO_VARIANTS:
+    if run.reads_pre_demos:
         pre = json.loads((run.data["random"] / "meta" / "info.json").read_text())["total_frames"]
     if run.method in ILPO_VARIANTS:
         summary = json.loads((checkpoint / "ilpo_remapping.json").read_text())

@@ -30,6 +30,11 @@ PLAY_LOW, PLAY_HIGH = np.array([-0.3, 0.4, 0.05]), np.array([0.3, 0.9, 0.3])
 PLAY_MAX_STEPS_PER_TARGET = 40
 PLAY_PAUSE = (0.2, (5, 15))  # chance that the next move is a pause where the hand is, and the pause's steps
 PLAY_GRASP_HOLD = (5, 30)  # steps a gripper command is held
+# A held move: one hand command kept for 10-40 steps, each axis at a bound (±1) or uniform in between. The scripted
+# experts saturate their commands for tens of steps, so the mocap target runs ahead of the lagging hand; moves that
+# steer toward a target never do that, and an IDM trained on them alone labels the expert's approach short
+# (button-press-topdown's y: R² -0.99 without held moves, 0.65 with half of them; benchmarks/findings.md).
+PLAY_HELD_STEPS = (10, 40)
 # Meta-World draws its task list from NumPy's global generator (seeding it, then restoring it): two threads building
 # envs at once drew interleaved values ("Only generated 49 unique goals, not 50").
 _BUILDING = threading.Lock()
@@ -42,8 +47,9 @@ class MetaWorldStateEnv(MetaworldEnv):
     ``environment_state`` (Meta-World's 39 values: hand, gripper, two objects' position and quaternion, the same
     18 of the previous frame, goal). Nothing is rendered."""
 
-    def __init__(self, task: str = "push-v3"):
+    def __init__(self, task: str = "push-v3", play_held_moves: float = 0.5):
         check_metaworld_task(task)  # LeRobot's class raises a bare KeyError
+        self.play_held_moves = play_held_moves
         # LeRobot's class refuses obs_type="state" and renders for the pixel types: its pixel type is named here
         # only to construct it, and _format_raw_obs below never renders.
         super().__init__(task=task, obs_type="pixels_agent_pos")
@@ -96,18 +102,25 @@ class MetaWorldStateEnv(MetaworldEnv):
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
     def play_action(self) -> np.ndarray:
-        """Goal-agnostic play: the hand travels to random targets in the working box at a random speed, or pauses
-        where it is, and the gripper is opened or closed at random and held for 5-30 steps. It reads the hand only,
-        never the objects or the goal."""
+        """Goal-agnostic play: a share ``play_held_moves`` of the moves hold one random hand command for 10-40
+        steps; the others travel to random targets in the working box at a random speed, or pause where the hand
+        is. The gripper is opened or closed at random and held for 5-30 steps. It reads the hand only, never the
+        objects or the goal."""
         rng, play, hand = self.np_random, self._play, self._observation[:3]
         moving = play.get("speed", 0.0) > 0
         reached = moving and np.linalg.norm(play["target"] - hand) < 0.01
         if not play or play["steps"] >= play["max_steps"] or reached:
-            if rng.random() < PLAY_PAUSE[0]:
-                play.update(target=hand.copy(), speed=0.0, steps=0, max_steps=int(rng.integers(*PLAY_PAUSE[1])))
+            if self.play_held_moves and rng.random() < self.play_held_moves:
+                at_bound = rng.random(3) < 0.5
+                command = np.where(at_bound, rng.choice([-1.0, 1.0], 3), rng.uniform(-1.0, 1.0, 3))
+                steps = int(rng.integers(*PLAY_HELD_STEPS, endpoint=True))
+                play.update(held=command, speed=0.0, steps=0, max_steps=steps)
+            elif rng.random() < PLAY_PAUSE[0]:
+                steps = int(rng.integers(*PLAY_PAUSE[1]))
+                play.update(held=None, target=hand.copy(), speed=0.0, steps=0, max_steps=steps)
             else:
                 target, speed = rng.uniform(PLAY_LOW, PLAY_HIGH), rng.uniform(0.3, 1.0)
-                play.update(target=target, speed=speed, steps=0, max_steps=PLAY_MAX_STEPS_PER_TARGET)
+                play.update(held=None, target=target, speed=speed, steps=0, max_steps=PLAY_MAX_STEPS_PER_TARGET)
             play.setdefault("grasp", -1.0)
             play.setdefault("hold", 0)
         if play["hold"] <= 0:
@@ -115,6 +128,9 @@ class MetaWorldStateEnv(MetaworldEnv):
             play["hold"] = int(rng.integers(*PLAY_GRASP_HOLD, endpoint=True))
         play["steps"] += 1
         play["hold"] -= 1
-        move = np.clip(10.0 * (play["target"] - hand), -1.0, 1.0) * play["speed"]  # the experts' gain, p=10
-        move = np.clip(move + rng.normal(0.0, 0.1 if play["speed"] else 0.02, 3), -1.0, 1.0)
+        if play["held"] is not None:
+            move = np.clip(play["held"] + rng.normal(0.0, 0.1, 3), -1.0, 1.0)
+        else:
+            move = np.clip(10.0 * (play["target"] - hand), -1.0, 1.0) * play["speed"]  # the experts' gain, p=10
+            move = np.clip(move + rng.normal(0.0, 0.1 if play["speed"] else 0.02, 3), -1.0, 1.0)
         return np.asarray([*move, play["grasp"]], dtype=np.float32)

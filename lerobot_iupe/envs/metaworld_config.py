@@ -55,6 +55,9 @@ class MetaWorldStateEnvConfig(ClassicEnvConfig):
     episode's seed."""
 
     task: str | None = "push-v3"
+    # Share of the play agent's moves (--agent=play) that hold one hand command for 10-40 steps, as the scripted
+    # experts hold theirs; 0 is the play of the first Meta-World results (targets and pauses only).
+    play_held_moves: float = 0.5
     STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {
         "agent_pos": ("hand.x", "hand.y", "hand.z", "gripper.opening"),
         "environment_state": (
@@ -77,12 +80,14 @@ class MetaWorldStateEnvConfig(ClassicEnvConfig):
 
     @property
     def gym_kwargs(self) -> dict:
-        return {**super().gym_kwargs, "task": self.task}
+        return {**super().gym_kwargs, "task": self.task, "play_held_moves": self.play_held_moves}
 
     def validate(self) -> None:
         check_metaworld_task(self.task)
         if not 1 <= self.episode_length <= 500:
             raise ValueError(f"--env.episode_length must be between 1 and Meta-World's 500, got {self.episode_length}")
+        if not 0.0 <= self.play_held_moves <= 1.0:
+            raise ValueError(f"--env.play_held_moves is a share of play's moves, in [0, 1]; got {self.play_held_moves}")
 
     def settings(self) -> dict:
-        return {**super().settings(), "task": self.task}
+        return {**super().settings(), "task": self.task, "play_held_moves": self.play_held_moves}
