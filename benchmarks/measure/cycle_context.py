@@ -2,12 +2,16 @@
 it (``fit_idm`` on the play pre-demonstrations I_pre, 10 epochs of batch 256), then scored by R² on the expert's
 own actions (the benchmark's expert dataset collected with them), every transition of the 10 episodes, by action
 dimension too (hand x, y, z, grasp); beside it a ridge regression per dimension on the same windows and data, the
-simplest fit to beat. Means over seeds.
+simplest fit to beat. Means over seeds; a dimension the expert holds constant (the grasp of most tasks) has no R²
+(–), and the means are over the others.
 
     python benchmarks/measure/cycle_context.py --work outputs/metaworld [--tasks push pick-place] [--ks 0 1 2 3 4]
+    python benchmarks/measure/cycle_context.py --work outputs/metaworld outputs/mw-hold --ks 3 --keys state \
+        --page cycle_play
 
-Reads the datasets the Meta-World benchmark collected under ``<work>/data``; writes benchmarks/cycle_context.md
-and .json.
+Reads the datasets the Meta-World benchmark collected under ``<work>/data`` (several work folders: the same
+expert beside each folder's pre-demonstrations, e.g. play collected with other ``--env.play_held_moves``); writes
+benchmarks/<page>.md and .json (page: cycle_context).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from lerobot.policies.factory import make_policy
 from lerobot.utils.constants import OBS_STATE
 
 from lerobot_iupe.data.readers import load_transitions
+from lerobot_iupe.data.storage import read_iupe_meta
 from lerobot_iupe.policy import IUPEConfig
 from lerobot_iupe.policy.algorithm import r_squared
 from lerobot_iupe.policy.idm_fit import fit_idm
@@ -57,6 +62,11 @@ def ridge_r2(train_x: np.ndarray, train_y: np.ndarray, test_x: np.ndarray, test_
     return r_squared(b @ weights, test_y)
 
 
+def held_moves(pre: LeRobotDataset) -> float:
+    """The share of held moves the play pre-demonstrations were collected with (0 before the setting existed)."""
+    return float(read_iupe_meta(Path(pre.root))["env"].get("play_held_moves", 0.0))
+
+
 def measure(work: Path, task: str, k: int, keys: str, seed: int) -> dict:
     pre, expert = dataset(work, task, "random"), dataset(work, task, "expert-actions")
     config = IUPEConfig(
@@ -80,15 +90,17 @@ def measure(work: Path, task: str, k: int, keys: str, seed: int) -> dict:
     ]
     by_dimension = [r_squared(labels[:, d], test.actions[:, d]) for d in range(test.actions.shape[1])]
     return {
-        "task": task, "k": k, "keys": keys, "seed": seed, "idm_r2": r2, "idm_r2_by_dimension": by_dimension,
-        "ridge_r2": float(np.mean(ridge)), "ridge_r2_by_dimension": ridge,
+        "task": task, "k": k, "keys": keys, "seed": seed, "play_held_moves": held_moves(pre),
+        "idm_r2": r2, "idm_r2_by_dimension": by_dimension,
+        "ridge_r2": float(np.nanmean(ridge)), "ridge_r2_by_dimension": ridge,
     }  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--work", type=Path, default=Path("outputs/metaworld"))
+    parser.add_argument("--work", type=Path, nargs="+", default=[Path("outputs/metaworld")])
     parser.add_argument("--out", default="benchmarks")
+    parser.add_argument("--page", default="cycle_context", help="the page's name in --out")
     parser.add_argument("--tasks", nargs="+", default=["push", "pick-place", "peg-insert-side"])
     parser.add_argument("--ks", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--keys", nargs="+", default=list(KEYS))
@@ -97,26 +109,28 @@ def main() -> None:
     torch.set_num_threads(1)
     rows = []
     for task in args.tasks:
-        for keys in args.keys:
-            for k in args.ks:
-                for seed in args.seeds:
-                    rows.append(measure(args.work, task, k, keys, seed))
-                    print(json.dumps(rows[-1]), flush=True)
+        for work in args.work:
+            for keys in args.keys:
+                for k in args.ks:
+                    for seed in args.seeds:
+                        rows.append(measure(work, task, k, keys, seed))
+                        print(json.dumps(rows[-1]), flush=True)
     table = [
-        "| task | IDM reads | k | IDM R² | its x / y / z / grasp | ridge R² | its x / y / z / grasp |",
-        "|---|---|---|---|---|---|---|",
+        "| task | play's held moves | IDM reads | k | IDM R² | its x / y / z / grasp | ridge R² "
+        "| its x / y / z / grasp |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    for task in args.tasks:
-        for keys in args.keys:
-            for k in args.ks:
-                same = [r for r in rows if (r["task"], r["keys"], r["k"]) == (task, keys, k)]
-                cells = []
-                for fit in ("idm", "ridge"):
-                    dims = np.mean([r[f"{fit}_r2_by_dimension"] for r in same], axis=0)
-                    cells += [f"{np.mean([r[f'{fit}_r2'] for r in same]):.2f}", " / ".join(f"{v:.2f}" for v in dims)]
-                table.append(f"| {task} | {keys} | {k} | {' | '.join(cells)} |")
-    title = "The IUPE cycle's first IDM on Meta-World: its window k and the keys it reads"
-    write_page(Path(args.out), "cycle_context", command_line(), rows, title, __doc__.split("\n\n")[0], table)
+    settings = sorted({(r["task"], r["play_held_moves"], r["keys"], r["k"]) for r in rows}, key=str)
+    for task, held, keys, k in sorted(settings, key=lambda s: (args.tasks.index(s[0]), s[1:])):
+        same = [r for r in rows if (r["task"], r["play_held_moves"], r["keys"], r["k"]) == (task, held, keys, k)]
+        cells = []
+        for fit in ("idm", "ridge"):
+            dims = np.mean([r[f"{fit}_r2_by_dimension"] for r in same], axis=0)
+            by_dimension = " / ".join("–" if np.isnan(v) else f"{v:.2f}" for v in dims)
+            cells += [f"{np.mean([r[f'{fit}_r2'] for r in same]):.2f}", by_dimension]
+        table.append(f"| {task} | {held:g} | {keys} | {k} | {' | '.join(cells)} |")
+    title = "The IUPE cycle's first IDM on Meta-World: its window k, the keys it reads, the play it learns from"
+    write_page(Path(args.out), args.page, command_line(), rows, title, __doc__.split("\n\n")[0], table)
 
 
 if __name__ == "__main__":
