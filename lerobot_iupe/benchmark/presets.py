@@ -245,7 +245,8 @@ CONTINUOUS = {
 # (benchmarks/cycle_context.md).
 METAWORLD_POLICY = {"rollout_episodes": "10", "selection_episodes": "10"}
 # Half of play's moves hold one command for 10-40 steps, as the scripted experts do: the cycle's first IDM then
-# labels button-press-topdown's y at R² 0.65 instead of -0.99 (benchmarks/cycle_context.md).
+# labels button-press-topdown's y at R² 0.43 instead of -0.99 (benchmarks/cycle_play.md), and IUPE's success there
+# rose from 3 to 94 % (benchmarks/metaworld/results.md).
 METAWORLD_PLAY = {"play_held_moves": 0.5}
 METAWORLD_LABELLING = {"idm_context": "3", "idm_observation_keys": "[observation.state]"}
 METAWORLD = {

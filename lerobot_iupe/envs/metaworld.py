@@ -33,7 +33,7 @@ PLAY_GRASP_HOLD = (5, 30)  # steps a gripper command is held
 # A held move: one hand command kept for 10-40 steps, each axis at a bound (±1) or uniform in between. The scripted
 # experts saturate their commands for tens of steps, so the mocap target runs ahead of the lagging hand; moves that
 # steer toward a target never do that, and an IDM trained on them alone labels the expert's approach short
-# (button-press-topdown's y: R² -0.99 without held moves, 0.65 with half of them; benchmarks/findings.md).
+# (button-press-topdown's y: R² -0.99 without held moves, 0.43 with half of them; benchmarks/cycle_play.md).
 PLAY_HELD_STEPS = (10, 40)
 # Meta-World draws its task list from NumPy's global generator (seeding it, then restoring it): two threads building
 # envs at once drew interleaved values ("Only generated 49 unique goals, not 50").
