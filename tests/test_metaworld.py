@@ -167,6 +167,18 @@ def test_a_wrong_task_name_is_one_line_naming_the_flag_and_the_tasks(tmp_path):
     assert not root.exists()
 
 
+def test_a_share_of_held_moves_outside_0_1_is_one_line_naming_the_flag_and_nothing_is_written(tmp_path):
+    root = tmp_path / "data"
+    result = run_in_process(
+        "lerobot-iupe-collect", "--env.type=metaworld_state", TASK, "--env.play_held_moves=1.5", "--agent=play",
+        "--episodes=1", "--dataset.repo_id=local/x", f"--dataset.root={root}",
+    )  # fmt: skip
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    line = result.stderr.strip().splitlines()[-1]
+    assert "--env.play_held_moves" in line and "[0, 1]" in line and "1.5" in line
+    assert not root.exists()
+
+
 def test_the_env_names_a_wrong_task_for_lerobot_eval_too():
     from lerobot_iupe.envs.metaworld import MetaWorldStateEnv
 
