@@ -120,7 +120,7 @@ def main() -> None:
         "| its x / y / z / grasp |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    settings = sorted({(r["task"], r["play_held_moves"], r["keys"], r["k"]) for r in rows}, key=str)
+    settings = {(r["task"], r["play_held_moves"], r["keys"], r["k"]) for r in rows}
     for task, held, keys, k in sorted(settings, key=lambda s: (args.tasks.index(s[0]), s[1:])):
         same = [r for r in rows if (r["task"], r["play_held_moves"], r["keys"], r["k"]) == (task, held, keys, k)]
         cells = []

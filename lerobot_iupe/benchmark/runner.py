@@ -82,20 +82,19 @@ def collect_datasets(
     """Expert (state only), the same expert episodes with actions (for BC; ``with_actions``), random
     pre-demonstrations."""
     paths = {}
-    keys = {"expert": preset.data_key(quick), "random": preset.pre_demos_key(quick)}
     n_expert, n_random = preset.data.expert_episodes, preset.data.random_episodes
     if quick:
         n_expert, n_random = min(n_expert, 5), min(n_random, 60)
-    expert_flags = preset.env_flags()
-    for kind, agent, episodes, env_flags, extra in [
-        ("expert", "expert", n_expert, expert_flags, ["--seed=0"]),
-        ("expert-actions", "expert", n_expert, expert_flags, ["--seed=0", "--keep_actions=true"]),
-        ("random", preset.data.pre_demos_agent, n_random, preset.pre_demos_flags(),
-         ["--seed=1000", *preset.data.random_flags()]),
-    ]:  # fmt: skip
+    expert = (preset.data_key(quick), preset.env_flags())
+    pre_demos = (preset.pre_demos_key(quick), preset.pre_demos_flags())
+    for kind, agent, episodes, (key, env_flags), extra in [
+        ("expert", "expert", n_expert, expert, ["--seed=0"]),
+        ("expert-actions", "expert", n_expert, expert, ["--seed=0", "--keep_actions=true"]),
+        ("random", preset.data.pre_demos_agent, n_random, pre_demos, ["--seed=1000", *preset.data.random_flags()]),
+    ]:
         if kind == "expert-actions" and not with_actions:
             continue
-        root = data_dir / f"{name}-{keys['random' if kind == 'random' else 'expert']}-{kind}"
+        root = data_dir / f"{name}-{key}-{kind}"
         if not (root / "meta" / "iupe.json").exists():
             run_cli(
                 "lerobot-iupe-collect", *env_flags, f"--agent={agent}", f"--episodes={episodes}", *extra,
