@@ -34,13 +34,18 @@ from lerobot_iupe.policy.joint_idm import (
     BLOCKS,
     action_sources,
     best_copy_lag,
+    copy_map,
     episode_blocks,
     fit_linear,
     fit_ridge,
     gate_weights,
+    idle_dimensions,
+    is_rate_name,
     max_lag,
     named_sources,
+    rows_within,
     selection_folds,
+    stem_sources,
 )
 
 DELAY = 4
@@ -69,8 +74,8 @@ def test_each_action_gets_its_own_lag_and_a_differently_named_one_the_column_it_
     episodes = np.repeat([0, 1, 2], 200)
     actions = np.stack([np.roll(walk[:, 0], -2), np.roll(walk[:, 1], -7), -3.0 * np.roll(walk[:, 2], -4) + 9], 1)
     # Two actions named as states 0 and 1, the third named otherwise: it follows state 2 at lag 4, sign and scale aside.
-    columns, lags = action_sources(walk, actions, episodes, [0, 1, None])
-    assert columns == [0, 1, 2] and lags == [2, 7, 4]
+    columns, lags, kinds = action_sources(walk, actions, episodes, [0, 1, None])
+    assert columns == [0, 1, 2] and lags == [2, 7, 4] and kinds == ["position"] * 3
     # Actions that follow no state (an engine's thrust) are not the linear-first model's; one such dimension beside a
     # majority that do is, with its closest column.
     noise = rng.normal(size=(600, 1))
@@ -79,12 +84,66 @@ def test_each_action_gets_its_own_lag_and_a_differently_named_one_the_column_it_
         action_sources(walk, np.concatenate([actions[:, :2], noise, noise], axis=1), episodes, [0, 1, None, None])
         is None
     )
-    columns, _ = action_sources(walk, np.concatenate([actions, noise], axis=1), episodes, [0, 1, None, None])
+    columns, _, _ = action_sources(walk, np.concatenate([actions, noise], axis=1), episodes, [0, 1, None, None])
     assert columns[:3] == [0, 1, 2] and len(columns) == 4
+    # With cameras, a dimension that follows no column is read off them, at lag 0; all of them: no linear model.
+    _, lags, kinds = action_sources(walk, np.concatenate([actions, noise], axis=1), episodes, [0, 1, None, None],
+                                    cameras=True)  # fmt: skip
+    assert kinds == ["position"] * 3 + ["camera"] and lags[3] == 0
+    assert action_sources(walk, noise, episodes, [None], cameras=True) is None
     assert named_sources(["a", "b"], ["b", "c"]) == [None, 0]
     # Candidate fits are judged on whole held-out episodes where there are two or more, on blocks in one.
     assert selection_folds(episodes).tolist() == np.repeat([0, 1, 2], 200).tolist()
     assert len(np.unique(selection_folds(np.zeros(100, dtype=int)))) == BLOCKS
+
+
+def test_a_velocity_or_delta_takes_the_difference_of_its_column_at_its_own_lag_sign_and_gain():
+    rng = np.random.default_rng(7)
+    walk = rng.normal(size=(600, 3)).cumsum(axis=0)
+    episodes = np.repeat([0, 1, 2], 200)
+    step = np.diff(walk, axis=0, append=walk[-1:])  # step[t] = s_{t+1} - s_t
+    # a_0 = 10·(s_{t+1} − s_t) (a velocity at 10 fps), a_1 = −2·(s_{t+3} − s_{t+2}) + 1 (a delta, sign and lag), a_2 =
+    # the difference that ends at t (a velocity measured up to t): each named by stem, or not named at all.
+    actions = np.stack([10 * step[:, 0], -2 * np.roll(step[:, 1], -2) + 1, np.roll(step[:, 2], 1)], axis=1)
+    inside = rows_within(episodes, (-1, 3))
+    names, state = ["joint_a_vel", "joint_b.delta", "c_dot"], ["joint_a", "joint_b.pos", "c"]
+    stems = stem_sources(names, state)
+    assert stems == [0, 1, 2] and [is_rate_name(n) for n in names] == [True, True, True]
+    for given in (stems, None):
+        columns, lags, kinds = action_sources(walk[inside], actions[inside], episodes[inside], [None] * 3, 10, given,
+                                              lowest=-1)  # fmt: skip
+        assert columns == [0, 1, 2] and lags == [0, 2, -1] and kinds == ["difference"] * 3
+    offsets = list(range(-1, 12))
+    window = walk[np.clip(inside[:, None] + np.asarray(offsets), 0, len(walk) - 1)]
+    flat = window.reshape(len(inside), -1)
+    copy = copy_map(flat, actions[inside], 3, offsets, ([0, 1, 2], [0, 2, -1], ["difference"] * 3), [False] * 3)
+    assert copy[offsets.index(1) * 3 + 0, 0] == pytest.approx(10) and copy[0, 0] == 0  # gain 10 on s_{t+1} − s_t
+    assert copy[offsets.index(3) * 3 + 1, 1] == pytest.approx(-2) and copy[offsets.index(2) * 3 + 1, 1] == pytest.approx(2)
+    assert copy[offsets.index(0) * 3 + 2, 2] == pytest.approx(1) and copy[offsets.index(-1) * 3 + 2, 2] == pytest.approx(-1)
+
+
+def test_an_idle_difference_keeps_the_gain_of_the_others_and_no_correction():
+    rng = np.random.default_rng(3)
+    walk = rng.normal(size=(600, 4)).cumsum(axis=0)
+    walk[:, 3] = 5.0 + rng.normal(0, 1e-3, 600)  # the fourth joint rests in the labelled episodes
+    episodes = np.repeat([0, 1, 2], 200)
+    step = np.diff(walk, axis=0, append=walk[-1:])
+    actions = 10 * step + rng.normal(0, 0.01, step.shape)
+    inside = rows_within(episodes, (0, 1))
+    assert idle_dimensions(actions[inside]).tolist() == [False, False, False, True]
+    sources = action_sources(walk[inside], actions[inside], episodes[inside], [None] * 4, 10, [0, 1, 2, 3],
+                             [True] * 4)  # fmt: skip
+    assert sources[0] == [0, 1, 2, 3] and sources[2] == ["difference"] * 4 and sources[1][3] == 0
+    offsets = list(range(0, 12))
+    windows = walk[np.clip(inside[:, None] + np.asarray(offsets), 0, len(walk) - 1)]
+    weight, bias, report = fit_linear(windows, actions[inside], episodes[inside], offsets, sources, [False] * 4)
+    assert report["fit"][3] == "copy"
+    # A new episode moves it: labelled as 10·(s_{t+1} − s_t), the others' gain, not by a fit to its noise.
+    moving = rng.normal(size=(50, 4)).cumsum(axis=0)
+    new_windows = moving[np.clip(np.arange(50)[:, None] + np.asarray(offsets), 0, 49)].reshape(50, -1)
+    predicted = new_windows @ weight + bias
+    true = 10 * np.diff(moving[:, 3], append=moving[-1, 3])
+    assert r2(predicted[:-1, [3]], true[:-1, None])[0] > 0.99
 
 
 def windows_of(states: np.ndarray, offsets: list[int], length: int) -> np.ndarray:
@@ -113,13 +172,12 @@ def test_a_joint_idle_in_the_labelled_episodes_follows_its_own_state_on_episodes
     within = max(actions[episodes == e][:, idle].std(axis=0).max() for e in (0, 1))
     assert within < 0.05 * moving_actions[:, idle].std(axis=0).min()  # barely moves in the labelled episodes
     named = list(range(26))
-    columns, lags = action_sources(states, actions, episodes, named, max_lag(30))
+    sources = action_sources(states, actions, episodes, named, max_lag(30))
+    columns, lags, _ = sources
     hands = [j for j, name in enumerate(HUMANOID.action_names) if name.split("_", 1)[1] in ("index", "middle")]
     assert min(lags[j] for j in hands) > max(lags[j] for j in range(14))  # the fingers answer later than the arms
     offsets = list(range(-1, max_lag(30) + 1))
-    weight, bias, report = fit_linear(
-        windows_of(states, offsets, 300), actions, episodes, [offsets.index(k) for k in lags], columns, [True] * 26
-    )
+    weight, bias, report = fit_linear(windows_of(states, offsets, 300), actions, episodes, offsets, sources, [True] * 26)
     predicted = windows_of(moving_states, offsets, 300).reshape(len(moving_states), -1) @ weight + bias
     rows = np.arange(len(moving_states))
     for j in idle:
@@ -134,13 +192,12 @@ def test_a_leader_of_another_arm_takes_the_fit_over_every_column_where_its_map_m
     states, actions, episodes = generated(OTHER_LEADER, 3, 0)
     named = named_sources(list(OTHER_LEADER.action_names), list(OTHER_LEADER.state_names))
     assert named == [None] * 5 + [6]  # only the grippers share a name
-    columns, lags = action_sources(states, actions, episodes, named, max_lag(30))
-    assert columns == [0, 1, 2, 4, 5, 6]  # joint_4, held near 0, is no action's source
+    sources = action_sources(states, actions, episodes, named, max_lag(30))
+    assert sources[0] == [0, 1, 2, 4, 5, 6]  # joint_4, held near 0, is no action's source
     offsets = list(range(-1, max_lag(30) + 1))
     _, _, report = fit_linear(
-        windows_of(states, offsets, 300), actions, episodes, [offsets.index(k) for k in lags], columns,
-        [n is not None for n in named],
-    )  # fmt: skip
+        windows_of(states, offsets, 300), actions, episodes, offsets, sources, [n is not None for n in named]
+    )
     assert report["fit"][1] == "all"  # shoulder_lift drives joint_2 together with elbow_flex
     assert report["fit"][0] == "own"  # shoulder_pan is joint_1, sign aside
 
@@ -226,7 +283,7 @@ def delayed_arm_run(delayed_arm, shared_dir):
 
 def reference_table(stdout: str) -> dict[str, tuple[float, int, float, float]]:
     """{joint: (IDM, its lag, ridge, copy; NaN for none)} from the dry run's table."""
-    rows = re.findall(r"^  (\S+)\s+(-?[\d.]+)\s+(\d+)\s+(-?[\d.]+)\s+(?:(-?[\d.]+) \(k=\d+\)|–)", stdout, re.MULTILINE)
+    rows = re.findall(r"^  (\S+)\s+(-?[\d.]+)\s+(-?\d+)\s+(-?[\d.]+)\s+(?:(-?[\d.]+) \(k=\d+\)|–)", stdout, re.MULTILINE)
     return {name: (float(idm), int(lag), float(ridge), float(copy or "nan")) for name, idm, lag, ridge, copy in rows}
 
 

@@ -4,19 +4,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lerobot.configs import PreTrainedConfig
+from lerobot.configs import FeatureType, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims
 from lerobot_iupe.policy.joint_fit import named_columns, sources_of_dataset
-from lerobot_iupe.policy.joint_idm import max_lag
+from lerobot_iupe.policy.joint_idm import CAMERA, POSITION, SOURCE_KINDS, max_lag
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
 # Measured with benchmarks/measure/context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's
 # agreement 0.977 → 0.993 and LunarLander's R² 0.853 → 0.882 (by effect 0.851 → 0.885); it cost Acrobot
 # 0.998 → 0.996 and SO-101's R² 0.981 → 0.973 and left CartPole at 1.000. k = 2 was no better on average.
 SUPERVISED_IDM_CONTEXT = 1
+# How far after t the camera network of a camera dimension looks (t and t + this): a gripper's jaws take a few tenths
+# of a second to follow a key press; on a real arm's 10 fps wrist camera frames t and t+5 labelled it best.
+CAMERA_REACH_SECONDS = 0.5
 
 
 @PreTrainedConfig.register_subclass("iupe")
@@ -68,6 +71,11 @@ class IUPEConfig(ObservationPolicyConfig):
     # the action follows most closely (|correlation| at its lag). [] = off (the IDM of the paper's envs and cameras).
     # None = on wherever most action dimensions are named as states or follow a column (|correlation| ≥ 0.8).
     joint_state_columns: list[int] | None = None
+    # What each action dimension of that model reads of its column (policy/joint_idm.py, SOURCE_KINDS): "position"
+    # (a_t ~ s_{t+lag}: an arm's leader), "difference" (a_t ~ s_{t+lag+1} - s_{t+lag}: measured joint velocities,
+    # end-effector deltas) or "camera" (no column follows it: a camera network labels it, with the state's ridge).
+    # None = chosen from the labelled data (a checkpoint saved before this option existed reads as all "position").
+    idm_source_kinds: list[str] | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
     n_obs_steps: int = 1
@@ -178,6 +186,31 @@ class IUPEConfig(ObservationPolicyConfig):
         return bool(self.joint_state_columns)
 
     @property
+    def source_kinds(self) -> list[str]:
+        """Each action dimension's source kind in the linear-first model (``idm_source_kinds``; all positions for
+        a checkpoint that predates it)."""
+        return list(self.idm_source_kinds or [POSITION] * len(self.joint_state_columns or []))
+
+    @property
+    def camera_dims(self) -> list[int]:
+        """The action dimensions of the linear-first model that a camera network labels (no state column follows
+        them)."""
+        return [j for j, kind in enumerate(self.source_kinds) if kind == CAMERA] if self.joint_idm else []
+
+    @property
+    def camera_keys(self) -> list[str]:
+        """The cameras that network reads: the policy's (none where no dimension needs them)."""
+        if not self.camera_dims:
+            return []
+        return [k for k in self.observation_keys if self.input_features[k].type is FeatureType.VISUAL]
+
+    @property
+    def camera_offsets(self) -> list[int]:
+        """The frames the camera network reads around t: t and t + ``CAMERA_REACH_SECONDS`` (within the window)."""
+        reach = min(max(1, round(CAMERA_REACH_SECONDS * (self.fps or 30))), max(self.idm_window))
+        return [0, reach]
+
+    @property
     def idm_keys(self) -> list[str]:
         """The observation keys the IDM reads (the arm model: observation.state)."""
         if self.joint_idm:
@@ -249,24 +282,39 @@ class IUPEConfig(ObservationPolicyConfig):
         self.idm_epochs = self.idm_epochs or (5 if self.is_image else 10 if self.is_continuous else 2)
 
     def resolve_joint_idm(self, dataset_meta) -> None:
-        """The linear-first model's source columns and lags, from the dataset's names and its labelled frames (once:
-        a checkpoint's values stay)."""
+        """The linear-first model's source columns, lags and kinds, from the dataset's names and its labelled frames
+        (once: a checkpoint's values stay)."""
         features = dataset_meta.features
+        cameras = any(self.input_features[k].type is FeatureType.VISUAL for k in self.observation_keys)
+        lowest = -min(1, self.idm_context or 0)  # a difference may end at t (a velocity measured up to t)
         if self.joint_state_columns is None:
             sources = None
             own_keys = self.idm_observation_keys in (None, [OBS_STATE])  # an IDM of other keys was asked for
             float_actions = features.get(ACTION, {}).get("dtype", "").startswith("float")
             if self.supervised and own_keys and float_actions and OBS_STATE in self.observation_keys:
                 named = named_columns(dataset_meta)  # unnamed actions: each finds the column it follows
-                sources = None if self.binary_action_dims else sources_of_dataset(dataset_meta, named, self.idm_lag)
-            self.joint_state_columns, self.idm_joint_lags = sources or ([], None)
+                if not self.binary_action_dims:
+                    sources = sources_of_dataset(dataset_meta, named, self.idm_lag, lowest, cameras)
+            self.joint_state_columns, self.idm_joint_lags, self.idm_source_kinds = sources or ([], None, None)
         elif self.joint_idm and self.idm_joint_lags is None:
-            sources = sources_of_dataset(dataset_meta, list(self.joint_state_columns), self.idm_lag)
+            sources = sources_of_dataset(dataset_meta, list(self.joint_state_columns), self.idm_lag, lowest, cameras)
             self.idm_joint_lags = sources[1] if sources else [self.idm_lag or 0] * len(self.joint_state_columns)
+            self.idm_source_kinds = sources[2] if sources else None
         if not self.joint_idm:
             self.idm_lag = self.idm_lag or 0
         else:
             self.idm_lag = max(self.idm_joint_lags)
+        unknown = [kind for kind in self.source_kinds if kind not in SOURCE_KINDS]
+        if unknown or len(self.source_kinds) != len(self.joint_state_columns or []):
+            raise ValueError(
+                f"--policy.idm_source_kinds={self.idm_source_kinds} must give one of {list(SOURCE_KINDS)} for each "
+                f"action dimension ({len(self.joint_state_columns or [])})"
+            )
+        if self.camera_dims and not cameras:
+            raise ValueError(
+                f"--policy.idm_source_kinds={self.idm_source_kinds} reads dimensions {self.camera_dims} off a camera, "
+                f"and the policy reads none ({self.observation_keys})"
+            )
 
     def check_binary_action_dims(self) -> None:
         """``binary_action_dims`` must name dimensions of a continuous action."""

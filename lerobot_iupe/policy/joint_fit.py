@@ -16,7 +16,17 @@ from torch import nn
 from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.readers import ExpertFrames
 from lerobot_iupe.policy.action_space import feature_names
-from lerobot_iupe.policy.joint_idm import GATE_SHARE, action_sources, gate_weights, max_lag, named_sources
+from lerobot_iupe.policy.joint_idm import (
+    CAMERA,
+    GATE_SHARE,
+    action_sources,
+    gate_weights,
+    idle_dimensions,
+    is_rate_name,
+    max_lag,
+    named_sources,
+    stem_sources,
+)
 from lerobot_iupe.policy.train_run import training_episodes
 
 log = logging.getLogger("lerobot_iupe")
@@ -49,21 +59,28 @@ def named_joints(dataset_meta, columns: list[int]) -> list[bool]:
 
 
 def sources_of_dataset(
-    dataset_meta, named: list[int | None], lag: int | None = None
-) -> tuple[list[int], list[int]] | None:
-    """Each action dimension's source column and lag, from the labelled episodes (``joint_idm.action_sources``;
-    ``lag``: every joint's lag, as --policy.idm_lag asks), read before the policy is built: they set the IDM's
-    window. None where an action follows no state column."""
+    dataset_meta, named: list[int | None], lag: int | None = None, lowest: int = 0, cameras: bool = False
+) -> tuple[list[int], list[int], list[str]] | None:
+    """Each action dimension's source column, lag and kind, from the labelled episodes (``joint_idm.action_sources``;
+    ``lag``: every dimension's lag, as --policy.idm_lag asks; ``lowest``: the earliest difference; ``cameras``: a
+    dimension no column follows may be read off them), read before the policy is built: they set the IDM's window.
+    None where the actions follow no state column."""
     hf = LeRobotDataset(dataset_meta.repo_id, root=dataset_meta.root, video_backend="pyav").hf_dataset
     episodes = column_array(hf, "episode_index").reshape(-1)
     rows = labelled_rows(episodes)
     states = column_array(hf, OBS_STATE).astype(np.float64).reshape(len(hf), -1)[rows]
     actions = column_array(hf, ACTION).astype(np.float64).reshape(len(hf), -1)[rows]
     longest = max_lag(dataset_meta.fps) if lag is None else lag
-    sources = action_sources(states, actions, episodes[rows], named, longest)
+    features = dataset_meta.features
+    action_names = feature_names(features.get(ACTION)) or []
+    stems = stem_sources(action_names, feature_names(features.get(OBS_STATE)))
+    rate_names = [is_rate_name(name) for name in action_names]
+    if len(stems) != len(named):
+        stems, rate_names = None, None
+    sources = action_sources(states, actions, episodes[rows], named, longest, stems, rate_names, lowest, cameras)
     if sources is None or lag is None:
         return sources
-    return sources[0], [lag] * len(sources[0])
+    return sources[0], [lag] * len(sources[0]), sources[2]
 
 
 def gate_rows(expert: ExpertFrames, rows: np.ndarray) -> np.ndarray:
@@ -88,19 +105,29 @@ class JointFit:
         self.is_gate_row = np.zeros(len(expert.episodes), dtype=bool)
         self.is_gate_row[self.gate_rows] = True
         encoder = policy.idm_encoder
+        actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
+        self.idle = idle_dimensions(actions)  # these keep the bare copy: no network either
         if not (resume and bool(encoder.fitted)):  # --resume=true goes on with its fit; a new run fits its own data
             windows = self.windows(rows).cpu().numpy()
-            actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
             named = named_joints(policy.dataset_meta, policy.config.joint_state_columns)
             fit = encoder.fit(windows, actions, expert.episodes[rows], named)
+            kinds = policy.config.source_kinds
             log.info(
-                f"IUPE linear-first IDM: lags {policy.config.idm_joint_lags} frames, window "
+                f"IUPE linear-first IDM: sources {kinds}, lags {policy.config.idm_joint_lags} frames, window "
                 f"{policy.config.idm_window[0]} … {policy.config.idm_window[-1]}, fits {fit['fit']}, ridge alphas "
                 f"{fit['ridge_alpha']} on {len(rows)} labelled frames ({len(self.gate_rows)} judge the network)"
             )
 
     def windows(self, rows: np.ndarray) -> torch.Tensor:
         return self.expert.vector_windows(OBS_STATE, rows, self.policy.config.idm_window)
+
+    def camera(self, rows: np.ndarray) -> torch.Tensor | None:
+        """The camera network's frames of ``rows`` (None where no dimension reads a camera)."""
+        config = self.policy.config
+        if not config.camera_dims:
+            return None
+        frames = self.expert.windows(rows, config.camera_offsets)
+        return frames[:, :, self.policy.camera_columns.to(frames.device)]
 
     def training_rows(self, rows: np.ndarray) -> np.ndarray:
         """The batch's rows the network trains on (the gate's rows left out)."""
@@ -116,10 +143,12 @@ class JointFit:
         was_training = policy.training
         policy.eval()
         window = self.windows(self.gate_rows)
-        output = policy.joint_idm_output(window, gated=False)[:, : policy.config.action_dim]
+        camera = self.camera(self.gate_rows)
+        output = policy.joint_idm_output(window, gated=False, camera=camera)[:, : policy.config.action_dim]
         prior = policy.idm_head._scale(encoder.prior(window.float()))
         actions = self.expert.actions[torch.as_tensor(self.gate_rows, device=self.expert.actions.device)]
         target = policy.idm_head._scale(actions)
         gate = gate_weights((target - prior).cpu().numpy(), (output - prior).cpu().numpy())
+        gate[self.idle & (np.asarray(policy.config.source_kinds) != CAMERA)] = 0.0  # idle: the bare copy
         encoder.gate.copy_(torch.as_tensor(gate, dtype=torch.float32))
         policy.train(was_training)

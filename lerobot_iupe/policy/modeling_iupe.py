@@ -20,7 +20,13 @@ from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 from lerobot_iupe.policy.joint_idm import JointIDM
-from lerobot_iupe.policy.networks import FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
+from lerobot_iupe.policy.networks import (
+    CameraIDM,
+    FusedEncoder,
+    VectorEncoder,
+    make_action_head,
+    make_image_encoder,
+)
 from lerobot_iupe.policy.threads import acting_threads
 from lerobot_iupe.policy.training import IUPETrainer
 
@@ -49,8 +55,13 @@ class IUPEPolicy(PreTrainedPolicy):
                     "--policy.supervised=true …)"
                 )
             self.idm_encoder = JointIDM(
-                config.idm_window, config.idm_joint_lags, config.joint_state_columns, len(columns), config.hidden_dim
-            )
+                config.idm_window, config.idm_joint_lags, config.joint_state_columns, len(columns), config.hidden_dim,
+                config.source_kinds,
+            )  # fmt: skip
+            if config.camera_dims:  # dimensions no state column follows: a camera network of their own
+                cameras = [i for i, key in enumerate(config.observation_keys) if key in config.camera_keys]
+                self.register_buffer("camera_columns", torch.as_tensor(layout.indices(cameras)), persistent=False)
+                self.idm_camera = CameraIDM(config.layout_of(config.camera_keys), len(config.camera_dims), config)
             self.pm_encoder = (
                 FusedEncoder(layout, history, config)
                 if layout.fused
@@ -130,7 +141,8 @@ class IUPEPolicy(PreTrainedPolicy):
         k = self.config.idm_context or 0
         if self.config.joint_idm:
             columns = None if self.idm_columns is None else self.idm_columns.to(window.device)
-            return self.joint_idm_output(window if columns is None else window[:, :, columns])
+            state = window if columns is None else window[:, :, columns]
+            return self.joint_idm_output(state, camera=self.camera_frames(window) if self.config.camera_dims else None)
         if self.layout.fused and self.idm_columns is None:
             return self.idm_head(self.idm_encoder(self._fused_differences(window, k).flatten(1, 2)))
         frames = self._prepare(window)
@@ -142,21 +154,39 @@ class IUPEPolicy(PreTrainedPolicy):
 
     @property
     def labelling_keys(self) -> list[str]:
-        """The observation keys relabelling reads: the arm model's joint states alone (its cameras are never
-        decoded), else every key of the policy (``idm_window_output`` takes them joined)."""
-        return self.config.idm_keys if self.config.joint_idm else self.config.observation_keys
+        """The observation keys relabelling reads: the linear-first model's joint states alone (its cameras are never
+        decoded) unless a dimension is read off the cameras, else every key of the policy (``idm_window_output``
+        takes them joined)."""
+        if self.config.joint_idm and not self.config.camera_dims:
+            return self.config.idm_keys
+        return self.config.observation_keys
 
     def labelling_output(self, window: Tensor) -> Tensor:
         """The IDM's distribution parameters for windows (B, F, …) of ``labelling_keys``, joined."""
-        return self.joint_idm_output(window) if self.config.joint_idm else self.idm_window_output(window)
+        if self.config.joint_idm and not self.config.camera_dims:
+            return self.joint_idm_output(window)
+        return self.idm_window_output(window)
 
-    def joint_idm_output(self, window: Tensor, gated: bool | None = None) -> Tensor:
-        """The arm model's distribution parameters for a_t → joint-state windows (B, F, D), raw units: the head's
-        mean is the linear prior (copy plus ridge) plus the network's correction, times the per-joint gate when
-        ``gated`` (default: in eval mode; training fits the network ungated)."""
+    def camera_frames(self, window: Tensor) -> Tensor:
+        """The camera network's frames (B, len(camera_offsets), camera values) out of joined frames of every
+        observation key at the IDM's window offsets."""
+        frames = [self.config.idm_window.index(offset) for offset in self.config.camera_offsets]
+        return window[:, frames][:, :, self.camera_columns.to(window.device)]
+
+    def joint_idm_output(self, window: Tensor, gated: bool | None = None, camera: Tensor | None = None) -> Tensor:
+        """The linear-first model's distribution parameters for a_t → joint-state windows (B, F, D), raw units: the
+        head's mean is the linear prior (copy plus ridge) plus the network's correction (for a camera dimension,
+        also the camera network's on ``camera``, frames at ``camera_offsets``), times the per-dimension gate when
+        ``gated`` (default: in eval mode; training fits the networks ungated)."""
         encoder, head = self.idm_encoder, self.idm_head
         window = window.float()
-        output = head(encoder(window))
+        features = encoder(window)
+        if self.config.camera_dims:
+            if camera is None:
+                raise ValueError(f"action dimensions {self.config.camera_dims} are read off the cameras: pass camera=")
+            dims = torch.as_tensor(self.config.camera_dims, device=features.device)
+            features = features.index_add(1, dims, self.idm_camera(camera))
+        output = head(features)
         correction, log_std = output.split(self.config.action_dim, dim=-1)
         if self.training if gated is None else not gated:
             gate = 1.0
@@ -206,7 +236,8 @@ class IUPEPolicy(PreTrainedPolicy):
         return self.layout.join([batch[k] for k in self.config.observation_keys])
 
     def idm_parameters(self) -> list[nn.Parameter]:
-        return list(self.idm_encoder.parameters()) + list(self.idm_head.parameters())
+        camera = list(self.idm_camera.parameters()) if self.config.camera_dims else []
+        return list(self.idm_encoder.parameters()) + list(self.idm_head.parameters()) + camera
 
     def update_average(self) -> None:
         """After an optimizer step: move the policy model's weight average towards its weights (``ema_decay``);
@@ -286,9 +317,8 @@ class IUPEPolicy(PreTrainedPolicy):
             labels = expert.actions[rows]
             pm_loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
             if self.config.joint_idm:
-                idm_rows = self.trainer.joint_idm_rows(rows)
-                window = expert.vector_windows(OBS_STATE, idm_rows, self.config.idm_window)
-                idm_loss = self.idm_head.loss(self.joint_idm_output(window), expert.actions[idm_rows])
+                window, camera, idm_rows = self.trainer.joint_idm_batch(rows)
+                idm_loss = self.idm_head.loss(self.joint_idm_output(window, camera=camera), expert.actions[idm_rows])
             else:
                 window = expert.windows(rows, self.config.idm_window)
                 idm_loss = self.idm_head.loss(self.idm_window_output(window), labels)

@@ -195,6 +195,25 @@ class FusedEncoder(nn.Module):
         return self.mix(torch.cat(features, dim=1))
 
 
+class CameraIDM(nn.Module):
+    """The camera network of the linear-first IDM's camera dimensions (those no state column follows: a gripper
+    commanded from a keyboard): frames (B, 2, camera values) at t and a later frame, read as [x_t, x_later − x_t]
+    (frame differences, as the camera IDM reads them) by ``FusedEncoder``, then one correction per dimension, which
+    starts at 0 so that training starts from the state's ridge."""
+
+    def __init__(self, layout: ObservationLayout, dims: int, config):
+        super().__init__()
+        self.encoder = FusedEncoder(layout, 2, config)
+        self.out = nn.Linear(config.hidden_dim, dims)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, frames: Tensor) -> Tensor:
+        frames = frames.float()
+        start = frames[:, :1]
+        return self.out(self.encoder(torch.cat([start, frames[:, 1:] - start], dim=1).flatten(1)))
+
+
 class CategoricalHead(nn.Linear):
     """Logits over ``n_actions`` discrete actions (a linear layer, so checkpoints keep ``<head>.weight/.bias``)."""
 

@@ -199,11 +199,13 @@ class IUPETrainer:
             log.info(f"IUPE: expert dataset ready, {len(self._expert.episodes)} frames")
         return self._expert
 
-    def joint_idm_rows(self, rows: np.ndarray) -> np.ndarray:
-        """The arm model: fitted on the first call; the batch's rows its network trains on."""
+    def joint_idm_batch(self, rows: np.ndarray) -> tuple[Tensor, Tensor | None, np.ndarray]:
+        """The linear-first model (fitted on the first call): the batch's rows its networks train on, their state
+        windows and their camera frames (None where no dimension reads a camera)."""
         if self._joint_fit is None:
             self._joint_fit = JointFit(self.policy, self.expert_frames(), self.resume)
-        return self._joint_fit.training_rows(rows)
+        rows = self._joint_fit.training_rows(rows)
+        return self._joint_fit.windows(rows), self._joint_fit.camera(rows), rows
 
     def update_joint_gate(self) -> None:
         if self._joint_fit is not None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -151,19 +153,34 @@ class RelabelReport:
         return "\n".join(lines)
 
     def reference_table(self) -> list[str]:
-        """R² per joint of the IDM (with its lag in frames) beside its references; a joint where the IDM is more than
-        0.005 below the ridge regression is marked. An action with no state of its name has no copy ("–")."""
+        """R² per dimension of the IDM (with its lag in frames) beside its references — the ridge regression, the best
+        copy s_{t+k} of the state of the same name and the best difference copy g·(s_{t+d+1} − s_{t+d}) + b of the
+        column of the same name or stem — and the source the IDM reads ("–": no such column). A dimension where the
+        IDM is more than 0.005 below the ridge regression or a copy is marked."""
         refs = self.references
         width = max(len(n) for n in self.action_names)
-        lines = [f"  {'R² per joint':<{width}}  {'IDM':>7}  {'lag':>3}  {'ridge':>7}  {'copy s_{t+k}':>14}"]
-        lags = refs.get("lag") or [None] * len(self.action_names)
+        lines = [
+            f"  {'R² per dimension':<{width}}  {'IDM':>7}  {'lag':>3}  {'ridge':>7}  {'copy s_{t+k}':>14}  "
+            f"{'difference copy':>15}  source"
+        ]
+        count = len(self.action_names)
+        lags = refs.get("lag") or [None] * count
+        differences = refs.get("difference") or [float("nan")] * count
+        difference_lags = refs.get("difference_lag") or [-99] * count
+        kinds = refs.get("source") or ["position"] * count
         rows = zip(
             self.action_names, self.agreement_per_dimension, lags, refs["ridge"], refs["copy"], refs["copy_lag"],
-            strict=True,
+            differences, difference_lags, kinds, strict=True,
         )  # fmt: skip
-        for name, idm, lag, ridge, copy, copy_lag in rows:
+        for name, idm, lag, ridge, copy, copy_lag, difference, difference_lag, kind in rows:
+            copies = [value for value in (copy, difference) if not np.isnan(value)]
             mark = "  ← below the ridge regression" if idm < ridge - 0.005 else ""
+            if copies and idm < max(copies) - 0.005:
+                mark += "  ← below a copy"
             copied = f"{copy:7.4f} (k={copy_lag})" if copy_lag >= 0 else f"{'–':>7}" + " " * 7
+            differenced = f"{difference:7.4f} (d={difference_lag:>2})" if difference_lag > -99 else f"{'–':>15}"
             lag_text = "–" if lag is None else str(lag)
-            lines.append(f"  {name:<{width}}  {idm:7.4f}  {lag_text:>3}  {ridge:7.4f}  {copied}{mark}")
+            lines.append(
+                f"  {name:<{width}}  {idm:7.4f}  {lag_text:>3}  {ridge:7.4f}  {copied}  {differenced}  {kind}{mark}"
+            )
         return lines

@@ -1,7 +1,7 @@
 """The simplest fits beside the IDM, on a dataset that already has actions (``--dry_run=true``): for the linear-first
 model (``policy.joint_idm``), per joint, the plain ridge regression fitted on the IDM's own labelled frames and
-window, and the best copy of a future state of the same name a_t ≈ s_{t+k} (none for an action whose name is not a
-state's: its units are another arm's). A user sees at once whether the IDM earns its place."""
+window, the best copy of a future state of the same name a_t ≈ s_{t+k} (none for an action whose name is not a
+state's: its units are another arm's) and the best difference copy of the column of the same name or stem. A user sees at once whether the IDM earns its place."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import torch
 
 from lerobot_iupe.data.readers import window_indices
 from lerobot_iupe.policy.algorithm import r_squared
-from lerobot_iupe.policy.joint_idm import max_lag, named_sources
+from lerobot_iupe.policy.joint_idm import max_lag, named_sources, stem_sources
 
 
 def per_dimension_r2(predicted: np.ndarray, true: np.ndarray) -> list[float]:
@@ -41,6 +41,28 @@ def best_copies(
     return best
 
 
+def best_difference_copies(
+    states: np.ndarray, actions: np.ndarray, columns: list[int | None], bounds, rows: np.ndarray, lowest: int, longest: int
+) -> list[tuple[float, int]]:
+    """Per action dimension, (R², d) of the best difference copy a_t ≈ g·(s_{t+d+1} − s_{t+d}) + b, d = ``lowest`` …
+    ``longest`` − 1 (clamped into the episode), g and b fitted by least squares on these rows (the simplest fit of a
+    velocity or a delta; two numbers, so hardly flattered by fitting where it is scored); (NaN, -99) where
+    ``columns`` has no column."""
+    first, last, _ = episode_rows(bounds)
+    best = [(-np.inf, 0) if column is not None else (float("nan"), -99) for column in columns]
+    for d in range(lowest, longest):
+        later = np.clip(rows + d + 1, first[rows], last[rows])
+        now = np.clip(rows + d, first[rows], last[rows])
+        for j, column in enumerate(columns):
+            if column is None:
+                continue
+            source = states[later, column].astype(np.float64) - states[now, column]
+            design = np.stack([source, np.ones_like(source)], axis=1)
+            coef, *_ = np.linalg.lstsq(design, actions[rows, j].astype(np.float64), rcond=None)
+            best[j] = max(best[j], (r_squared(design @ coef, actions[rows, j]), d))
+    return best
+
+
 @torch.no_grad()
 def joint_references(
     policy, states: np.ndarray, actions: np.ndarray, bounds, rows: np.ndarray, state_names: list[str] | None = None
@@ -52,10 +74,16 @@ def joint_references(
     window = torch.as_tensor(states[window_indices(rows, config.idm_window, first[rows], last[rows])])
     ridge = policy.idm_encoder.reference(window.to(policy.device_of_weights)).cpu().numpy()
     named = named_sources(config.action_names, state_names) if state_names else [None] * config.action_dim
+    stems = stem_sources(config.action_names, state_names) if state_names else [None] * config.action_dim
     copies = best_copies(states, actions, named, bounds, rows, max_lag(config.fps))
+    lowest = -min(1, config.idm_context or 0)
+    differences = best_difference_copies(states, actions, stems, bounds, rows, lowest, max_lag(config.fps))
     return {
         "ridge": per_dimension_r2(ridge, actions[rows]),
         "copy": [score for score, _ in copies],
         "copy_lag": [lag for _, lag in copies],
+        "difference": [score for score, _ in differences],
+        "difference_lag": [lag for _, lag in differences],
         "lag": list(config.idm_joint_lags),
+        "source": config.source_kinds,
     }
