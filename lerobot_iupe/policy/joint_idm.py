@@ -214,9 +214,9 @@ def action_sources(
     (d = ``lowest`` … ``longest`` − 1) of largest |correlation|. One that follows none at ``RESEMBLANCE`` is read off
     the cameras where the IDM has some (``cameras``), else keeps its closest source. A dimension idle in the labelled
     frames (``idle_dimensions``) whose name ties it to a column keeps that column, as a difference where its name says
-    it is a rate (``rate_names``, then at the median lag of the other differences: its own fits noise). None where no dimension follows the
-    state (with cameras) or most do not (without): such actions (an engine's thrust) keep the IDM of the whole
-    observation."""
+    it is a rate (``rate_names``, then at the median lag of the other differences: its own fits noise). None where no
+    dimension follows the state (with cameras) or most do not (without): such actions (an engine's thrust) keep the
+    IDM of the whole observation."""
     states, actions = np.asarray(states, np.float64), np.asarray(actions, np.float64)
     count = len(named)
     stems = stems or [None] * count

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot.utils.constants import OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig

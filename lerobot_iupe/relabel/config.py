@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from lerobot_iupe.data.storage import WrittenDataset
 

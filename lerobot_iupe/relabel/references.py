@@ -1,7 +1,8 @@
 """The simplest fits beside the IDM, on a dataset that already has actions (``--dry_run=true``): for the linear-first
 model (``policy.joint_idm``), per joint, the plain ridge regression fitted on the IDM's own labelled frames and
 window, the best copy of a future state of the same name a_t ≈ s_{t+k} (none for an action whose name is not a
-state's: its units are another arm's) and the best difference copy of the column of the same name or stem. A user sees at once whether the IDM earns its place."""
+state's: its units are another arm's) and the best difference copy of the column of the same name or stem. A user
+sees at once whether the IDM earns its place."""
 
 from __future__ import annotations
 
@@ -42,7 +43,13 @@ def best_copies(
 
 
 def best_difference_copies(
-    states: np.ndarray, actions: np.ndarray, columns: list[int | None], bounds, rows: np.ndarray, lowest: int, longest: int
+    states: np.ndarray,
+    actions: np.ndarray,
+    columns: list[int | None],
+    bounds,
+    rows: np.ndarray,
+    lowest: int,
+    longest: int,
 ) -> list[tuple[float, int]]:
     """Per action dimension, (R², d) of the best difference copy a_t ≈ g·(s_{t+d+1} − s_{t+d}) + b, d = ``lowest`` …
     ``longest`` − 1 (clamped into the episode), g and b fitted by least squares on these rows (the simplest fit of a
