@@ -68,3 +68,15 @@ def test_strength_0_keeps_the_idms_labels_and_a_seed_gives_the_same_labels():
     observations, _, labels, _ = drifting_recording(episodes=5)
     np.testing.assert_array_equal(pulled(labels, observations, strength=0.0), labels)
     np.testing.assert_array_equal(pulled(labels, observations, seed=3), pulled(labels, observations, seed=3))
+
+
+def test_a_pull_never_moves_a_label_outside_the_action_bounds():
+    rng = np.random.default_rng(0)
+    observations = rng.normal(size=(400, 3)).astype(np.float32)
+    # Labels at the bounds whose regression on the observation reaches beyond them, with a wide IDM std.
+    labels = np.clip(3.0 * observations[:, :2], -1.0, 1.0).astype(np.float32)
+    spread = np.full_like(labels, 0.5)
+    pulled = pull_toward_observation(labels, spread, observations, np.array([-1.0, -1.0]), np.array([1.0, 1.0]),
+                                     1.0, seed=0, steps=300)  # fmt: skip
+    assert (pulled >= -1.0).all() and (pulled <= 1.0).all()
+    assert not np.allclose(pulled, labels)  # the pull did move them

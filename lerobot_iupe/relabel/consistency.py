@@ -66,7 +66,8 @@ def pull_toward_observation(
     scaled = 2.0 * (labels - low) / (high - low) - 1.0
     predicted = observation_regression(observations, scaled, seed, steps)
     limit = strength * 2.0 * spread  # the range spans 2 in scaled units
-    moved = scaled + np.clip(predicted - scaled, -limit, limit)
+    # The labels lie within the action's bounds (the IDM's modes are clipped there): the pull keeps them there.
+    moved = np.clip(scaled + np.clip(predicted - scaled, -limit, limit), -1.0, 1.0)
     if fixed_dims is not None:
         moved[:, fixed_dims] = scaled[:, fixed_dims]
     return (low + (moved + 1.0) * 0.5 * (high - low)).astype(labels.dtype)

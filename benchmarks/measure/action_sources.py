@@ -1,0 +1,143 @@
+"""Every action dimension from its best source, on the generator's hand-guided arm (``VELOCITY_ARM``: six measured
+joint velocities over jittered real time steps, a keyboard gripper that only the wrist camera shows, joint_4 idle in
+the labelled episodes and moving in the held-out ones): for 2 and 5 labelled episodes, ``lerobot-train
+--policy.type=iupe --policy.supervised=true`` with default flags, then ``lerobot-iupe-relabel`` on 10 held-out episodes
+with actions. Per dimension: the IDM's R², the ridge on the state window, the best difference copy, and for the
+gripper a ridge on 32×24 grey thumbnails of frames t and t+5 with the state window (fitted on the labelled episodes)
+and the accuracy of labels rounded to 0/1.
+
+    python benchmarks/measure/action_sources.py [--labelled 2 5] [--steps 1000] [--size 96 128]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.datasets import LeRobotDataset
+from PIL import Image
+
+from lerobot_iupe.data.arm_recording import VELOCITY_ARM, write_arm_recording
+from lerobot_iupe.data.episodes import column_array
+from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.joint_idm import REFERENCE_ALPHA, fit_ridge
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import command_line, dry_run, parse_with_folders, train_once  # noqa: E402
+
+FRAMES, HELD_OUT, FPS, IDLE = 150, 10, 10, "joint_4"
+
+
+def recording(root: Path, episodes: int, seed: int, size: tuple[int, int], idle: tuple[str, ...]) -> Path:
+    if not (root / "meta" / "info.json").exists():
+        shutil.rmtree(root, ignore_errors=True)
+        write_arm_recording(root, episodes, FRAMES, *size, fps=FPS, seed=seed, repo_id=f"local/{root.name}",
+                            body=VELOCITY_ARM, idle=idle)  # fmt: skip
+    return root
+
+
+def thumbnails(root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: 32×24 grey thumbnails of the wrist camera at t and t+5 (clamped into the episode), the state window
+    t−1 … t+10, the actions and the episode."""
+    dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
+    grey = np.stack([
+        np.asarray(Image.fromarray((dataset[i]["observation.images.wrist"].permute(1, 2, 0).numpy() * 255)
+                                   .astype(np.uint8)).convert("L").resize((32, 24)), np.float32).reshape(-1) / 255
+        for i in range(len(dataset))
+    ])  # fmt: skip
+    hf = dataset.hf_dataset
+    episodes = column_array(hf, "episode_index").reshape(-1)
+    states = column_array(hf, "observation.state").reshape(len(hf), -1)
+    actions = column_array(hf, "action").reshape(len(hf), -1)
+    rows = np.arange(len(hf))
+    first = np.array([np.flatnonzero(episodes == e)[0] for e in episodes])
+    last = np.array([np.flatnonzero(episodes == e)[-1] for e in episodes])
+    later = np.clip(rows + 5, first, last)
+    window = states[np.clip(rows[:, None] + np.arange(-1, 11)[None, :], first[:, None], last[:, None])].reshape(
+        len(rows), -1
+    )
+    return np.concatenate([grey, grey[later]], axis=1), window, actions, episodes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--labelled", type=int, nargs="+", default=[2, 5], help="labelled episodes")
+    parser.add_argument("--steps", type=int, default=1000, help="training steps")
+    parser.add_argument("--size", type=int, nargs=2, default=[96, 128], metavar=("H", "W"), help="camera size")
+    args = parse_with_folders(parser, "outputs/action-sources")
+    work, size = Path(args.work), tuple(args.size)
+    held_out = recording(work / "held-out", HELD_OUT, 100, size, ())
+    held_thumbs, held_window, held_actions, _ = thumbnails(held_out)
+    rows = []
+    for count in args.labelled:
+        labelled = recording(work / f"labelled-{count}", count, 0, size, (IDLE,))
+        start = time.perf_counter()
+        checkpoint = train_once(labelled, work / f"run-{count}", steps=args.steps, threads=2)
+        train_s = time.perf_counter() - start
+        report = dry_run(checkpoint, held_out)
+        relabelled = work / f"relabelled-{count}"
+        shutil.rmtree(relabelled, ignore_errors=True)
+        shutil.copytree(held_out, relabelled)
+        from lerobot_iupe.relabel.config import CheckpointRef, RelabelConfig, RelabelDataset
+        from lerobot_iupe.relabel.run import relabel
+
+        dataset = RelabelDataset(repo_id="local/relabelled", root=str(relabelled), video_backend="pyav")
+        relabel(RelabelConfig(policy=CheckpointRef(path=str(checkpoint)), dataset=dataset, overwrite=True))
+        labels = column_array(LeRobotDataset("local/relabelled", root=relabelled).hf_dataset, "action")
+        labels = labels.reshape(len(labels), -1)
+        thumbs, window, actions, episodes = thumbnails(labelled)
+        features = np.concatenate([thumbs, window], axis=1)
+        weight, bias, *_ = fit_ridge(features, actions[:, [6]], episodes, (REFERENCE_ALPHA,))
+        thumb_pred = np.concatenate([held_thumbs, held_window], axis=1) @ weight + bias
+        inner = np.ones(len(labels), dtype=bool)  # the dry run scores frames with a successor; so does this
+        references = report.references
+        rows.append({
+            "labelled": count, "steps": args.steps, "train_s": round(train_s, 1),
+            "dimensions": VELOCITY_ARM.action_names, "source": references["source"],
+            "idm": report.agreement_per_dimension, "ridge": references["ridge"],
+            "difference_copy": references["difference"],
+            "gripper_thumbnail_ridge": r_squared(thumb_pred[inner, 0], held_actions[inner, 6]),
+            "gripper_thumbnail_accuracy": float(((thumb_pred[:, 0] > 0.5) == (held_actions[:, 6] > 0.5)).mean()),
+            "gripper_accuracy": float(((labels[:, 6] > 0.5) == (held_actions[:, 6] > 0.5)).mean()),
+        })  # fmt: skip
+        print(json.dumps(rows[-1]))
+    lines = [
+        "# Every action dimension from its best source: the generator's hand-guided arm",
+        "",
+        f"`{command_line()}` — {HELD_OUT} held-out episodes of {FRAMES} frames at {FPS} fps, cameras "
+        f"{size[1]}×{size[0]} (AV1); joint_4 idle in the labelled episodes. R² per dimension on the held-out frames with a successor.",
+        "",
+        "| labelled | dimension | source | IDM | ridge (state window) | difference copy | IDM − best simple fit |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        for j, name in enumerate(row["dimensions"]):
+            simple = [row["ridge"][j], row["difference_copy"][j]]
+            if name == "gripper":
+                simple = [row["ridge"][j], row["gripper_thumbnail_ridge"]]
+            simple = [v for v in simple if v == v]
+            difference = row["difference_copy"][j]
+            lines.append(
+                f"| {row['labelled']} | {name} | {row['source'][j]} | {row['idm'][j]:.4f} | {row['ridge'][j]:.4f} | "
+                f"{'–' if difference != difference else f'{difference:.4f}'} | {row['idm'][j] - max(simple):+.4f} |"
+            )
+        lines.append(
+            f"| {row['labelled']} | gripper accuracy | | {row['gripper_accuracy']:.3f} | | | thumbnail ridge: "
+            f"R² {row['gripper_thumbnail_ridge']:.4f}, accuracy {row['gripper_thumbnail_accuracy']:.3f} |"
+        )
+    lines += ["", f"Training: {args.steps} steps, " + ", ".join(f"{r['train_s']} s ({r['labelled']} labelled)"
+                                                              for r in rows) + " on 2 threads."]  # fmt: skip
+    out = Path(args.out)
+    (out / "action_sources.md").write_text("\n".join(lines) + "\n")
+    (out / "action_sources.json").write_text(json.dumps(rows, indent=1))
+    torch.set_num_threads(1)
+
+
+if __name__ == "__main__":
+    main()

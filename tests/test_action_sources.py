@@ -1,0 +1,97 @@
+"""Every action dimension from its best source (policy/joint_idm.py's source kinds), end to end on the generator's
+hand-guided arm (``VELOCITY_ARM``: measured joint velocities ``joint_i_vel`` over positions ``joint_i`` at 10 fps with
+jittered real time steps, and a keyboard gripper that only the wrist camera shows): lerobot-train with default flags
+on two labelled episodes, then lerobot-iupe-relabel --dry_run=true on held-out ones."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+import torch
+from conftest import CHECKPOINT, once, run_in_process, train_once
+from test_arm_idm import reference_table
+
+from lerobot_iupe.data.arm_recording import VELOCITY_ARM, write_arm_recording
+from lerobot_iupe.policy import IUPEPolicy
+
+VELOCITIES = [name for name in VELOCITY_ARM.action_names if name.endswith("_vel")]
+IDLE = "joint_4"
+
+
+def velocity_pair(data_dir, name: str, cameras: bool) -> tuple:
+    """Two labelled episodes (``IDLE`` resting in them) and three held-out ones where every joint moves, with actions;
+    cameras at 48×64."""
+    roots = []
+    for part, episodes, seed, idle in (("", 2, 0, (IDLE,)), ("-held-out", 3, 100, ())):
+        root = data_dir / f"{name}{part}"
+        write = lambda root=root, n=episodes, s=seed, idle=idle: write_arm_recording(  # noqa: E731
+            root, n, 150, height=48, width=64, fps=10, seed=s, repo_id=f"local/{root.name}", cameras=cameras,
+            body=VELOCITY_ARM, idle=idle,
+        )  # fmt: skip
+        roots.append(once(root, write, "meta/info.json"))
+    return tuple(roots)
+
+
+def default_run(shared_dir, labelled, steps: int) -> tuple:
+    out = shared_dir / "runs" / labelled.name
+    run = train_once(
+        out, "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{labelled.name}",
+        f"--dataset.root={labelled}", "--batch_size=32", f"--steps={steps}", f"--save_freq={steps}",
+        "--num_workers=0", "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false",
+        f"--output_dir={out}",
+    )  # fmt: skip
+    return run / CHECKPOINT, json.loads((run / CHECKPOINT / "config.json").read_text())
+
+
+def dry_run(checkpoint, held_out) -> str:
+    result = run_in_process(
+        "lerobot-iupe-relabel", f"--policy.path={checkpoint}", "--dataset.repo_id=local/x",
+        f"--dataset.root={held_out}", "--dry_run=true", "--dataset.video_backend=pyav", check=True,
+    )  # fmt: skip
+    return result.stdout
+
+
+def difference_copies(stdout: str) -> dict[str, float]:
+    """{dimension: R² of its best difference copy} from the dry run's table (dimensions that have one)."""
+    rows = re.findall(r"^  (\S+)\s.*?\s(-?[\d.]+) \(d=\s*-?\d+\)", stdout, re.MULTILINE)
+    return {name: float(value) for name, value in rows}
+
+
+def test_velocities_are_labelled_from_their_columns_differences_no_worse_than_the_difference_copy(data_dir, shared_dir):
+    labelled, held_out = velocity_pair(data_dir, "velocity-arm", cameras=False)
+    checkpoint, config = default_run(shared_dir, labelled, 100)
+    assert config["idm_source_kinds"][:6] == ["difference"] * 6
+    assert config["joint_state_columns"][:6] == list(range(6))  # joint_i_vel reads joint_i: the stems match
+    out = dry_run(checkpoint, held_out)
+    table, differences = reference_table(out), difference_copies(out)
+    assert set(VELOCITIES) <= set(table) and set(VELOCITIES) <= set(differences), out
+    for joint in VELOCITIES:  # the idle joint too: it moves in the held-out episodes, and keeps its copy there
+        idm = table[joint][0]
+        assert idm >= differences[joint] - 0.005, f"{joint}: IDM {idm} vs difference copy {differences[joint]}\n{out}"
+    assert differences[f"{IDLE}_vel"] > 0.5  # it does move there
+
+
+def test_a_keyboard_gripper_that_only_the_camera_shows_is_read_off_the_camera_and_only_it(data_dir, shared_dir):
+    labelled, held_out = velocity_pair(data_dir, "velocity-arm-cameras", cameras=True)
+    checkpoint, config = default_run(shared_dir, labelled, 60)
+    assert config["idm_source_kinds"] == ["difference"] * 6 + ["camera"]
+    policy = IUPEPolicy.from_pretrained(checkpoint).eval()
+    assert set(policy.labelling_keys) == {"observation.state", *policy.config.camera_keys}
+    assert policy.config.camera_offsets == [0, 5]  # t and t + 0.5 s at 10 fps
+    # The velocities do not depend on the cameras; the gripper does.
+    generator = torch.Generator().manual_seed(0)
+    state = torch.randn(4, len(policy.config.idm_window), 6, generator=generator)
+    frames = [torch.rand(4, 2, policy.camera_columns.numel(), generator=generator) for _ in range(2)]
+    with torch.no_grad():
+        outputs = [policy.joint_idm_output(state, gated=False, camera=f)[:, :7] for f in frames]
+    torch.testing.assert_close(outputs[0][:, :6], outputs[1][:, :6])
+    assert not torch.allclose(outputs[0][:, 6], outputs[1][:, 6])
+    with pytest.raises(ValueError, match="read off the cameras"):
+        policy.joint_idm_output(state)
+    out = dry_run(checkpoint, held_out)  # the relabelling path decodes the cameras and labels every dimension
+    rows = {line.split()[0]: line for line in out.splitlines() if line.startswith("  ")}
+    assert "camera" in rows["gripper"] and all("difference" in rows[joint] for joint in VELOCITIES), out
+    assert np.isfinite(reference_table(out)["gripper"][0])
