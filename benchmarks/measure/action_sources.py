@@ -111,7 +111,8 @@ def main() -> None:
         "# Every action dimension from its best source: the generator's hand-guided arm",
         "",
         f"`{command_line()}` — {HELD_OUT} held-out episodes of {FRAMES} frames at {FPS} fps, cameras "
-        f"{size[1]}×{size[0]} (AV1); joint_4 idle in the labelled episodes. R² per dimension on the held-out frames with a successor.",
+        f"{size[1]}×{size[0]} (AV1); joint_4 idle in the labelled episodes. R² per dimension on the held-out "
+        "frames with a successor.",
         "",
         "| labelled | dimension | source | IDM | ridge (state window) | difference copy | IDM − best simple fit |",
         "|---|---|---|---|---|---|---|",
