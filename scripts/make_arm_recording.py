@@ -9,7 +9,10 @@ camera training on without a robot; the tests, ``benchmarks/measure/cameras.py``
     python scripts/make_arm_recording.py --root data/humanoid --no_cameras --body humanoid --idle left_arm
 
 ``--body`` records other arms (a leader of another arm, a humanoid's arms and hands, a miscalibrated SO-101;
-docs/relabelling.md); they are written without cameras.
+docs/relabelling.md); they are written without cameras. ``--body velocity_arm`` records a hand-guided arm at 10 fps:
+measured joint velocities and a keyboard gripper that only its wrist camera shows, with cameras:
+
+    python scripts/make_arm_recording.py --root data/velocity-arm --body velocity_arm --idle joint_4
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lerobot_iupe.data.arm_recording import BODIES, HUMANOID_LEFT_ARM, ArmDynamics, write_arm_recording
+from lerobot_iupe.data.arm_recording import HUMANOID_LEFT_ARM, ArmDynamics
+from lerobot_iupe.data.arm_writer import BODIES, write_arm_recording
 
 
 def main() -> None:
@@ -35,7 +39,8 @@ def main() -> None:
     parser.add_argument(
         "--body", choices=sorted(BODIES), default="so101",
         help="which arms record: so101; so101_miscalibrated (an offset wrist_roll that barely follows); "
-        "other_leader (an SO-101 leader driving a 7-value follower of other names); humanoid (2 arms, 2 hands)",
+        "other_leader (an SO-101 leader driving a 7-value follower of other names); humanoid (2 arms, 2 hands); "
+        "velocity_arm (hand-guided, 10 fps: measured joint velocities, a keyboard gripper only its camera shows)",
     )  # fmt: skip
     parser.add_argument(
         "--idle", nargs="+", default=[], metavar="JOINT",
@@ -72,13 +77,15 @@ def main() -> None:
         parser.error(f"--root={args.root} already exists; choose a new folder")
     body = BODIES[args.body]
     idle = tuple(j for name in args.idle for j in (HUMANOID_LEFT_ARM if name == "left_arm" else (name,)))
-    unknown = sorted(set(idle) - set(body.action_names))
+    known = set(body.action_names) | (set(body.state_names) if args.body == "velocity_arm" else set())
+    unknown = sorted(set(idle) - known)
     if unknown:
         parser.error(f"--idle: {unknown} are not joints of --body={args.body}: {', '.join(body.action_names)}")
-    if args.body != "so101" and not args.no_cameras:
+    if args.body not in ("so101", "velocity_arm") and not args.no_cameras:
         parser.error(f"--body={args.body}: the cameras draw an SO-101; add --no_cameras")
     dataset = write_arm_recording(
-        args.root, args.episodes, args.frames, args.height, args.width, seed=args.seed, repo_id=args.repo_id,
+        args.root, args.episodes, args.frames, args.height, args.width, fps=10 if args.body == "velocity_arm" else 30,
+        seed=args.seed, repo_id=args.repo_id,
         vcodec=args.vcodec, with_actions=not args.state_only, progress=True, dynamics=dynamics,
         cameras=not args.no_cameras, body=body, idle=idle,
     )  # fmt: skip

@@ -14,7 +14,8 @@ import torch
 from conftest import CHECKPOINT, once, run_in_process, train_once
 from test_arm_idm import reference_table
 
-from lerobot_iupe.data.arm_recording import VELOCITY_ARM, write_arm_recording
+from lerobot_iupe.data.arm_writer import write_arm_recording
+from lerobot_iupe.data.hand_guided_arm import VELOCITY_ARM
 from lerobot_iupe.policy import IUPEPolicy
 
 VELOCITIES = [name for name in VELOCITY_ARM.action_names if name.endswith("_vel")]

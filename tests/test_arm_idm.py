@@ -27,25 +27,27 @@ from lerobot_iupe.data.arm_recording import (
     SO101_MISCALIBRATED,
     ArmDynamics,
     teleoperated_episode,
-    write_arm_recording,
 )
+from lerobot_iupe.data.arm_writer import write_arm_recording
 from lerobot_iupe.policy import IUPEPolicy
-from lerobot_iupe.policy.joint_idm import (
-    BLOCKS,
+from lerobot_iupe.policy.action_sources import (
     action_sources,
     best_copy_lag,
-    copy_map,
-    episode_blocks,
-    fit_linear,
-    fit_ridge,
-    gate_weights,
     idle_dimensions,
     is_rate_name,
     max_lag,
     named_sources,
     rows_within,
-    selection_folds,
     stem_sources,
+)
+from lerobot_iupe.policy.joint_idm import (
+    BLOCKS,
+    copy_map,
+    episode_blocks,
+    fit_linear,
+    fit_ridge,
+    gate_weights,
+    selection_folds,
 )
 
 DELAY = 4

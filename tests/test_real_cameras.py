@@ -16,7 +16,8 @@ import torch
 from conftest import BIN, CHECKPOINT, once, run_in_process
 from lerobot.datasets import LeRobotDataset
 
-from lerobot_iupe.data.arm_recording import CAMERAS, write_arm_recording
+from lerobot_iupe.data.arm_recording import CAMERAS
+from lerobot_iupe.data.arm_writer import write_arm_recording
 from lerobot_iupe.data.episodes import EpisodeFrames
 from lerobot_iupe.data.frame_cache import cache_dir, cached_frames
 from lerobot_iupe.data.video import CameraFrames, resize_images
@@ -149,7 +150,8 @@ def test_the_generator_waits_for_lerobots_encoder_so_every_video_holds_its_episo
     waits on those queues, so it must find them on LeRobot's real writer."""
     import av
 
-    from lerobot_iupe.data.arm_recording import arm_features, encoder_queues
+    from lerobot_iupe.data.arm_recording import arm_features
+    from lerobot_iupe.data.arm_writer import encoder_queues
 
     dataset = LeRobotDataset.create("local/q", 30, arm_features(48, 64, True), root=tmp_path / "q",
                                     use_videos=True, streaming_encoding=True)  # fmt: skip

@@ -23,8 +23,9 @@ import torch
 from lerobot.datasets import LeRobotDataset
 from PIL import Image
 
-from lerobot_iupe.data.arm_recording import VELOCITY_ARM, write_arm_recording
+from lerobot_iupe.data.arm_writer import write_arm_recording
 from lerobot_iupe.data.episodes import column_array
+from lerobot_iupe.data.hand_guided_arm import VELOCITY_ARM
 from lerobot_iupe.policy.algorithm import r_squared
 from lerobot_iupe.policy.joint_idm import REFERENCE_ALPHA, fit_ridge
 

@@ -24,10 +24,11 @@ import numpy as np
 import torch
 from lerobot.datasets import LeRobotDataset
 
-from lerobot_iupe.data.arm_recording import BODIES, HUMANOID_LEFT_ARM, ArmDynamics, write_arm_recording
+from lerobot_iupe.data.arm_recording import HUMANOID_LEFT_ARM, ArmDynamics
+from lerobot_iupe.data.arm_writer import BODIES, write_arm_recording
 from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.readers import window_indices
-from lerobot_iupe.policy.joint_idm import max_lag
+from lerobot_iupe.policy.action_sources import max_lag
 from lerobot_iupe.relabel.references import per_dimension_r2
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from lerobot_iupe.data.arm_recording import ArmDynamics, teleoperated_episode
-from lerobot_iupe.policy.joint_idm import best_copy_lag
+from lerobot_iupe.policy.action_sources import best_copy_lag
 
 
 def episodes(count: int, seed: int, dynamics: ArmDynamics) -> list[tuple[np.ndarray, np.ndarray]]:

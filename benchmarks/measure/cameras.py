@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_iupe.data.arm_recording import write_arm_recording
+from lerobot_iupe.data.arm_writer import write_arm_recording
 
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import update  # noqa: E402

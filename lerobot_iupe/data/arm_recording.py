@@ -12,9 +12,7 @@ over a fixed textured table, so that a codec has real work.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -259,88 +257,6 @@ HUMANOID = ArmBody(
     extra_delay=tuple(np.where(_is_hand, 5, 0).tolist()), response=tuple(np.where(_is_hand, 0.7, 1.0).tolist()),
     unit=np.pi / 180, encoder_step=(2 * np.pi / 4096,) * 26, robot_type="humanoid",
 )  # fmt: skip
-# A six-joint arm moved by hand (drag mode) at 10 fps, as a real industrial arm records it: the state its joint
-# positions in radians, the action their *measured velocities* in rad/s and a gripper commanded from a keyboard
-# (0 open, 1 closed) whose opening no state column records (``hand_guided_episode``). Its cameras draw it with the
-# SO-101's links (joint_5 turns the hand about its axis with joint_4), so that only they show the jaws.
-VELOCITY_JOINTS = tuple(f"joint_{i}" for i in range(6))
-VELOCITY_ARM = ArmBody(
-    "velocity_arm", tuple(f"{j}_vel" for j in VELOCITY_JOINTS) + ("gripper",), VELOCITY_JOINTS,
-    (-1.8, -1.5, -1.4, -1.5, -2.5, -1.0), (1.8, 1.5, 1.4, 1.5, 2.5, 1.0), unit=np.pi / 180,
-    robot_type="hand_guided_arm",
-)  # fmt: skip
-# Per joint, how far the measured velocity runs behind (+) or ahead (−) of the motion: the real arm's velocities best
-# match the frame difference s_{t+k+1} − s_{t+k} at k = −1, 0 or 1 depending on the joint.
-VELOCITY_READING_DELAY_S = (0.0, 0.05, -0.05, 0.1, 0.0, -0.1)
-BODIES = {body.name: body for body in (SO101, SO101_MISCALIBRATED, OTHER_LEADER, HUMANOID, VELOCITY_ARM)}
-FINE_RATE = 200  # Hz of the continuous motion that the irregular frames sample
-
-
-def hand_guided_episode(
-    frames: int, rng: np.random.Generator, fps: int = 10, idle: tuple[str, ...] = ()
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(joint positions (frames, 6) rad, actions (frames, 7): measured joint velocities rad/s and the keyboard
-    gripper, the jaws' opening (frames,) 0 shut … 1 open) of ``VELOCITY_ARM`` moved by hand. The real time between
-    frames varies from 0.05 to 0.35 s while the recording's timestamps say 1/``fps`` (as the real recording's tools
-    regularise them); each velocity is read with its joint's ``VELOCITY_READING_DELAY_S``, with noise. The key
-    toggles the gripper every 1–6 s; the jaws follow it with a 0.3 s time constant. Joints named in ``idle`` (their
-    velocity names or joint names) rest but for the hand's tremor."""
-    body = VELOCITY_ARM
-    steps = np.clip(rng.normal(1.0 / fps, 0.06, frames), 0.05, 0.35)
-    times = np.r_[0.0, np.cumsum(steps)[:-1]] + 0.2
-    fine = int(np.ceil((times[-1] + 0.5) * FINE_RATE)) + 1
-    names = set(idle) | {f"{j}_vel" for j in idle}
-    idle_mask = np.isin(body.action_names[:6], list(names)) | np.isin(body.state_names, list(names))
-    # The operator's glides, on the fine clock: one waypoint every 1.5–5 s rather than every 15–50 frames.
-    waypoints, _ = operator_targets(
-        int(np.ceil(fine / 20)) + 60, rng, 0.05 * body.unit, 0.0, np.asarray(body.low[:6]), np.asarray(body.high[:6]),
-        None, idle_mask,
-    )  # fmt: skip
-    clock = np.arange(fine) / FINE_RATE
-    path = np.stack([np.interp(clock, np.arange(len(waypoints)) / 10.0, w) for w in waypoints.T], axis=1)
-    rate = np.gradient(path, 1.0 / FINE_RATE, axis=0)
-    positions = np.stack([np.interp(times, clock, p) for p in path.T], axis=1)
-    read_at = times[:, None] - np.asarray(VELOCITY_READING_DELAY_S)[None, :]
-    velocities = np.stack([np.interp(read_at[:, j], clock, rate[:, j]) for j in range(6)], axis=1)
-    velocities += rng.normal(0.0, 0.005, velocities.shape)
-    key, closed, t = np.zeros(frames), 0.0, 0.0
-    toggles = []
-    while t < times[-1]:
-        t += rng.uniform(1.0, 6.0)
-        toggles.append(t)
-    for toggle in toggles:
-        closed = 1.0 - closed
-        key[times >= toggle] = closed
-    opening, jaw = np.empty(frames), 1.0 - key[0]
-    for i in range(frames):
-        opening[i] = jaw
-        jaw += (1.0 - key[i] - jaw) * (1.0 - np.exp(-steps[i] / 0.3))
-    readings = positions + rng.normal(0.0, 0.0005, positions.shape)
-    actions = np.concatenate([velocities, key[:, None]], axis=1)
-    return readings.astype(np.float32), actions.astype(np.float32), opening.astype(np.float32)
-
-
-def wrist_view(joints: np.ndarray, opening: float, background: Image.Image, noise: np.ndarray | None) -> np.ndarray:
-    """What a camera on the velocity arm's hand sees (H, W, 3) uint8: the table, shifted and turned as the joints
-    move, and the gripper's two jaws rising from the bottom of the image, apart by their ``opening`` (0 … 1)."""
-    width, height = background.size
-    shift = (int(0.25 * width * np.sin(joints[0])), int(0.25 * height * np.sin(joints[1] + joints[2])))
-    image = background.rotate(float(np.degrees(joints[4] + joints[5])), translate=shift, fillcolor=(90, 90, 90))
-    draw = ImageDraw.Draw(image)
-    jaw_width, gap = 0.12 * width, (0.06 + 0.16 * float(opening)) * width
-    for side in (-1, 1):
-        inner = width / 2 + side * gap
-        outer = inner + side * jaw_width
-        draw.rectangle([min(inner, outer), 0.62 * height, max(inner, outer), height], fill=(45, 45, 50))
-    if noise is None:
-        return np.asarray(image)
-    return np.clip(np.asarray(image).astype(np.int16) + noise, 0, 255).astype(np.uint8)
-
-
-def drawn_pose(joints: np.ndarray, opening: float) -> np.ndarray:
-    """The pose ``render`` draws (SO-101 links, degrees, gripper 0 … 100) of the velocity arm's joints (rad)."""
-    degrees = np.degrees(joints)
-    return np.array([*degrees[:4], degrees[4] + degrees[5], 100.0 * opening])
 
 
 def teleoperated_episode(
@@ -382,89 +298,3 @@ def teleoperated_episode(
         step = np.asarray(body.encoder_step)
         readings = np.round(readings / step) * step
     return readings.astype(np.float32), targets.astype(np.float32)
-
-
-def _wait_for_encoder(dataset, poll_s: float = 0.002) -> None:
-    """Block while a camera's streaming-encoder queue is full. LeRobot's writer drops a frame then (a live camera
-    cannot wait); a generator can, and a dropped frame would leave a video shorter than its episode."""
-    while any(queue.full() for queue in encoder_queues(dataset)):
-        time.sleep(poll_s)
-
-
-def encoder_queues(dataset) -> list:
-    """The frame queues of the writer's streaming encoder for the episode being written (none before its first
-    frame, or without streaming encoding)."""
-    encoder = getattr(dataset.writer, "_streaming_encoder", None)
-    return list(getattr(encoder, "_frame_queues", {}).values())
-
-
-def write_arm_recording(
-    root: str | Path,
-    episodes: int,
-    frames_per_episode: int,
-    height: int = 480,
-    width: int = 640,
-    fps: int = 30,
-    seed: int = 0,
-    repo_id: str = "local/arm-recording",
-    video: bool = True,
-    vcodec: str = "libsvtav1",
-    with_actions: bool = True,
-    progress: bool = False,
-    dynamics: ArmDynamics = ArmDynamics(),
-    cameras: bool = True,
-    body: ArmBody = SO101,
-    idle: tuple[str, ...] = (),
-):
-    """Write the recording at ``root`` with ``LeRobotDataset.create`` → ``add_frame`` → ``save_episode`` →
-    ``finalize``; episode ``i`` is drawn from seed ``seed + i``. ``with_actions=false`` leaves ``action`` out
-    (a state-only recording); ``dynamics`` is how the follower follows the leader, ``body`` which arms record
-    (``BODIES``), ``idle`` the leader joints that stay put; ``cameras=False`` writes the joints alone (quick data for
-    the arm IDM, which reads only them; the cameras draw an SO-101 alone). Returns the finalised ``LeRobotDataset``."""
-    from lerobot.configs.video import RGBEncoderConfig
-    from lerobot.datasets import LeRobotDataset
-    from tqdm.auto import tqdm
-
-    if cameras and body.state_names not in (SO101.state_names, VELOCITY_ARM.state_names):
-        raise ValueError(f"the cameras draw an SO-101; the {body.name} body is written with cameras=False")
-    names = set(body.action_names) | (set(body.state_names) if body is VELOCITY_ARM else set())
-    unknown = sorted(set(idle) - names)
-    if unknown:
-        raise ValueError(f"idle joints {unknown} are not among the {body.name} leader's {list(body.action_names)}")
-    video = video and cameras
-    features = arm_features(height, width, video, cameras, body)
-    if not with_actions:
-        features.pop("action")
-    dataset = LeRobotDataset.create(
-        repo_id, fps, features, root=root, robot_type=body.robot_type, use_videos=video,
-        rgb_encoder=RGBEncoderConfig(vcodec=vcodec) if video else None, streaming_encoding=video,
-    )  # fmt: skip
-    backgrounds = {key: _table(height, width, seed + n) for n, key in enumerate(CAMERAS)}
-    # A camera's noise changes every frame (as a real sensor's does, and as a codec pays for): drawn from a bank.
-    noise_rng = np.random.default_rng(seed + 10_000)
-    noise_bank = noise_rng.normal(0.0, SENSOR_NOISE, size=(16, height, width, 3)).round().astype(np.int16)
-    for episode in tqdm(range(episodes), desc="arm episodes", disable=not progress):
-        rng = np.random.default_rng(seed + episode)
-        if body is VELOCITY_ARM:
-            positions, targets, opening = hand_guided_episode(frames_per_episode, rng, fps, idle)
-            poses = [drawn_pose(q, o) for q, o in zip(positions, opening, strict=True)]
-        else:
-            positions, targets = teleoperated_episode(frames_per_episode, rng, dynamics, body, idle)
-            poses = positions
-        openings = opening if body is VELOCITY_ARM else [None] * len(positions)
-        for q, target, pose, jaws in zip(positions, targets, poses, openings, strict=True):
-            frame = {}
-            for key, view in zip(CAMERAS, ("front", "wrist"), strict=True) if cameras else ():
-                noise = noise_bank[noise_rng.integers(len(noise_bank))]
-                if jaws is not None and view == "wrist":  # a camera on the hand: it shows the jaws
-                    frame[key] = wrist_view(q, jaws, backgrounds[key], noise)
-                else:
-                    frame[key] = render(pose, backgrounds[key], view, noise)
-            frame["observation.state"] = q
-            if with_actions:
-                frame["action"] = target
-            _wait_for_encoder(dataset)
-            dataset.add_frame({**frame, "task": "move the arm"})
-        dataset.save_episode()
-    dataset.finalize()
-    return dataset

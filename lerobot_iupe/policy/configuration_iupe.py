@@ -8,9 +8,9 @@ from lerobot.configs import FeatureType, PreTrainedConfig
 from lerobot.optim import AdamConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_iupe.policy.action_sources import CAMERA, POSITION, SOURCE_KINDS, max_lag
 from lerobot_iupe.policy.action_space import action_space_from_dataset, check_binary_action_dims
 from lerobot_iupe.policy.joint_fit import named_columns, sources_of_dataset
-from lerobot_iupe.policy.joint_idm import CAMERA, POSITION, SOURCE_KINDS, max_lag
 from lerobot_iupe.policy.observation_config import ObservationPolicyConfig
 
 # Measured with benchmarks/measure/context.py (10 labelled expert episodes, 50 held out): k = 1 raised MountainCar's

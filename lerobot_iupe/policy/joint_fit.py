@@ -15,18 +15,17 @@ from torch import nn
 
 from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.readers import ExpertFrames
-from lerobot_iupe.policy.action_space import feature_names
-from lerobot_iupe.policy.joint_idm import (
+from lerobot_iupe.policy.action_sources import (
     CAMERA,
-    GATE_SHARE,
     action_sources,
-    gate_weights,
     idle_dimensions,
     is_rate_name,
     max_lag,
     named_sources,
     stem_sources,
 )
+from lerobot_iupe.policy.action_space import feature_names
+from lerobot_iupe.policy.joint_idm import GATE_SHARE, gate_weights
 from lerobot_iupe.policy.train_run import training_episodes
 
 log = logging.getLogger("lerobot_iupe")

@@ -10,8 +10,8 @@ import numpy as np
 import torch
 
 from lerobot_iupe.data.readers import window_indices
+from lerobot_iupe.policy.action_sources import max_lag, named_sources, stem_sources
 from lerobot_iupe.policy.algorithm import r_squared
-from lerobot_iupe.policy.joint_idm import max_lag, named_sources, stem_sources
 
 
 def per_dimension_r2(predicted: np.ndarray, true: np.ndarray) -> list[float]:
