@@ -179,13 +179,12 @@ class IUPEPolicy(PreTrainedPolicy):
         ``gated`` (default: in eval mode; training fits the networks ungated)."""
         encoder, head = self.idm_encoder, self.idm_head
         window = window.float()
-        features = encoder(window)
-        if self.config.camera_dims:
+        output = head(encoder(window))
+        if self.config.camera_dims:  # added after the head, whose weights mix dimensions: the others never read it
             if camera is None:
                 raise ValueError(f"action dimensions {self.config.camera_dims} are read off the cameras: pass camera=")
-            dims = torch.as_tensor(self.config.camera_dims, device=features.device)
-            features = features.index_add(1, dims, self.idm_camera(camera))
-        output = head(features)
+            dims = torch.as_tensor(self.config.camera_dims, device=output.device)
+            output = output.index_add(1, dims, self.idm_camera(camera).to(output.dtype))
         correction, log_std = output.split(self.config.action_dim, dim=-1)
         if self.training if gated is None else not gated:
             gate = 1.0
