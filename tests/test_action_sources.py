@@ -88,11 +88,12 @@ def test_a_keyboard_gripper_that_only_the_camera_shows_is_read_off_the_camera_an
     assert config["idm_source_kinds"] == ["difference"] * 6 + ["camera"]
     policy = IUPEPolicy.from_pretrained(checkpoint).eval()
     assert set(policy.labelling_keys) == {"observation.state", *policy.config.camera_keys}
-    assert policy.config.camera_offsets == [0, 5]  # t and t + 0.5 s at 10 fps
+    assert policy.config.camera_offsets == [0, 1, 5]  # t, t + 1 and t + 0.5 s at 10 fps
     # The velocities do not depend on the cameras; the gripper does.
     generator = torch.Generator().manual_seed(0)
     state = torch.randn(4, len(policy.config.idm_window), 6, generator=generator)
-    frames = [torch.rand(4, 2, policy.camera_columns.numel(), generator=generator) for _ in range(2)]
+    offsets = len(policy.config.camera_offsets)
+    frames = [torch.rand(4, offsets, policy.camera_columns.numel(), generator=generator) for _ in range(2)]
     with torch.no_grad():
         outputs = [policy.joint_idm_output(state, gated=False, camera=f)[:, :7] for f in frames]
     torch.testing.assert_close(outputs[0][:, :6], outputs[1][:, :6])

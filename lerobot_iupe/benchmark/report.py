@@ -109,6 +109,8 @@ REPRODUCE = {
 def metaworld_section(records: list[dict], methods: list[str]) -> list[str]:
     """Meta-World's success rates (%, by the mode) per task and their mean, with other papers' figures below."""
     envs = [e for e in METAWORLD if _group(records, table="metaworld", env=e)]
+    if not envs:  # no section, and no mean over an empty list
+        return []
     tasks, methods = [ENV_NAMES[e] for e in envs], [m for m in methods if _group(records, table="metaworld", method=m)]
     lines = [
         "", "## Meta-World (state: the 39 values), success rate % by the mode (lerobot-eval's rule)", "",
@@ -139,7 +141,7 @@ def metaworld_section(records: list[dict], methods: list[str]) -> list[str]:
         "the expert's actions, from point clouds (DP3) or images, the mean of its 5 best evaluations: not this "
         "protocol, shown for scale."
     )
-    return [*lines, "", note] if envs else []
+    return [*lines, "", note]
 
 
 def env_steps_table(records: list[dict]) -> list[str]:

@@ -206,9 +206,10 @@ class IUPEConfig(ObservationPolicyConfig):
 
     @property
     def camera_offsets(self) -> list[int]:
-        """The frames the camera network reads around t: t and t + ``CAMERA_REACH_SECONDS`` (within the window)."""
+        """The frames the camera network reads around t: t, t + 1 (where a commanded change shows first) and
+        t + ``CAMERA_REACH_SECONDS`` (where a slow one, a gripper's jaws, has shown; within the window)."""
         reach = min(max(1, round(CAMERA_REACH_SECONDS * (self.fps or 30))), max(self.idm_window))
-        return [0, reach]
+        return sorted({0, 1, reach})
 
     @property
     def idm_keys(self) -> list[str]:

@@ -197,13 +197,13 @@ class FusedEncoder(nn.Module):
 
 class CameraIDM(nn.Module):
     """The camera network of the linear-first IDM's camera dimensions (those no state column follows: a gripper
-    commanded from a keyboard): frames (B, 2, camera values) at t and a later frame, read as [x_t, x_later − x_t]
+    commanded from a keyboard): frames (B, F, camera values) at t and later frames, read as [x_t, x_j − x_t …]
     (frame differences, as the camera IDM reads them) by ``FusedEncoder``, then one correction per dimension, which
     starts at 0 so that training starts from the state's ridge."""
 
     def __init__(self, layout: ObservationLayout, dims: int, config):
         super().__init__()
-        self.encoder = FusedEncoder(layout, 2, config)
+        self.encoder = FusedEncoder(layout, len(config.camera_offsets), config)
         self.out = nn.Linear(config.hidden_dim, dims)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)

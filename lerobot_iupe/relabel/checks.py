@@ -71,10 +71,12 @@ def label_names(config) -> list[str]:
 
 def check_labelable(policy: IUPEPolicy, meta: LeRobotDatasetMetadata, overwrite: bool, dry_run: bool) -> list[str]:
     """Raise an error naming both sides when this checkpoint cannot label the dataset (``data.compat``: every
-    observation key the IDM reads, its shape, fps, and the action space of an ``action`` the dataset already has),
-    or when the dataset has actions and replacing them was not asked for. Returns the observation keys to read."""
+    observation key of the checkpoint, its shape, fps, and the action space of an ``action`` the dataset already
+    has), or when the dataset has actions and replacing them was not asked for. Returns the observation keys to
+    read: those the IDM reads (a linear-first IDM without camera dimensions decodes no camera, but a dataset
+    without the cameras the checkpoint was trained with is another robot's)."""
     config = policy.config
-    for key in policy.labelling_keys:
+    for key in dict.fromkeys([*config.observation_keys, *policy.labelling_keys]):
         check_compatible(checkpoint_spec(config, key), dataset_spec(meta, key, f"the dataset {meta.root}"))
     if ACTION in meta.features:
         if not (overwrite or dry_run):
