@@ -208,6 +208,17 @@ def test_a_leader_of_another_arm_takes_the_fit_over_every_column_where_its_map_m
     assert report["fit"][0] == "own"  # shoulder_pan is joint_1, sign aside
 
 
+def test_a_camera_dimensions_linear_part_is_its_labelled_mean_whatever_the_state_does_later():
+    states, actions, episodes = generated(OTHER_LEADER, 2, 0)
+    sources = ([0, 1, 2, 4, 5, 6], [2] * 6, ["position"] * 5 + ["camera"])
+    offsets = list(range(-1, max_lag(30) + 1))
+    weight, bias, report = fit_linear(
+        windows_of(states, offsets, 300), actions, episodes, offsets, sources, [False] * 5 + [True]
+    )
+    assert report["fit"][5] == "mean" and not weight[:, 5].any()
+    assert bias[5] == pytest.approx(actions[:, 5].mean())  # a pose never labelled cannot send it anywhere
+
+
 def test_ridge_recovers_a_linear_map_and_chooses_each_targets_strength_by_held_out_episodes():
     rng = np.random.default_rng(1)
     x = rng.normal(size=(300, 5))

@@ -28,6 +28,8 @@ from lerobot_iupe.data.episodes import column_array
 from lerobot_iupe.data.hand_guided_arm import VELOCITY_ARM
 from lerobot_iupe.policy.algorithm import r_squared
 from lerobot_iupe.policy.joint_idm import REFERENCE_ALPHA, fit_ridge
+from lerobot_iupe.relabel.config import CheckpointRef, RelabelConfig, RelabelDataset
+from lerobot_iupe.relabel.run import relabel
 
 sys.path.insert(0, str(Path(__file__).parent))
 from steps import command_line, dry_run, parse_with_folders, train_once  # noqa: E402
@@ -85,9 +87,6 @@ def main() -> None:
         relabelled = work / f"relabelled-{count}"
         shutil.rmtree(relabelled, ignore_errors=True)
         shutil.copytree(held_out, relabelled)
-        from lerobot_iupe.relabel.config import CheckpointRef, RelabelConfig, RelabelDataset
-        from lerobot_iupe.relabel.run import relabel
-
         dataset = RelabelDataset(repo_id="local/relabelled", root=str(relabelled), video_backend="pyav")
         relabel(RelabelConfig(policy=CheckpointRef(path=str(checkpoint)), dataset=dataset, overwrite=True))
         labels = column_array(LeRobotDataset("local/relabelled", root=relabelled).hf_dataset, "action")

@@ -16,13 +16,14 @@ ones still follows its own state, and a fit over many columns from few episodes 
 humanoid, a ridge over all 26 joints scored R² 0.852 where each joint's own window scored 0.980). A plain ridge on the
 same window (``reference``) is kept beside it as the simplest fit that relabelling reports.
 
-A source has a *kind* (``SOURCE_KINDS``): a position a_t ≈ g·s_{t+lag} + b (an arm's leader), a *difference*
-a_t ≈ g·(s_{t+lag+1} − s_{t+lag}) + b (measured joint velocities, end-effector deltas), or *camera*: no state column
-follows the dimension (a gripper commanded from a keyboard whose opening no column records), so a camera network
-labels it and its linear part is the ridge over every column. Each dimension takes the kind that follows it more
-closely on the labelled frames (``action_sources``). A dimension that barely moved in the labelled episodes
-(``idle_dimensions``) keeps the bare copy of its source (gain 1 for a namesake's position, the gain of the other
-differences for a difference) with no correction, so that a new episode that moves it is not extrapolated."""
+A source has a *kind* (``SOURCE_KINDS``): a position a_t ≈ g·s_{t+lag} + b (an arm's leader), a *difference* a_t ≈
+g·(s_{t+lag+1} − s_{t+lag}) + b (measured joint velocities, end-effector deltas), or *camera*: no state column follows
+the dimension (a gripper commanded from a keyboard whose opening no column records), so a camera network labels it from
+its labelled mean: a ridge over every column extrapolated without bound where a joint that barely moved in 2 labelled
+episodes moved in a new one (the generator's velocity arm: the gripper at R² −7,511). Each dimension takes the kind that
+follows it more closely on the labelled frames (``action_sources``). A dimension that barely moved in the labelled
+episodes (``idle_dimensions``) keeps the bare copy of its source (gain 1 for a namesake's position, the gain of the
+other differences for a difference) with no correction, so that a new episode that moves it is not extrapolated."""
 
 from __future__ import annotations
 
@@ -173,8 +174,8 @@ def fit_linear(
     """The linear part a ≈ flat(window) @ W + b from labelled windows (N, F, D) at ``offsets`` and actions (N, A):
     the copy (``copy_map``) plus, per dimension, a ridge correction shrunk toward it, over its own source column at
     every frame of the window, or over every column where that predicts held-out episodes clearly better
-    (``CLEARLY_BETTER``, ``selection_folds``); a camera dimension takes the fit over every column, an idle one
-    (``idle_dimensions``) none. Returns W, b and per dimension the fit taken ("own", "all" or "copy"), its strength
+    (``CLEARLY_BETTER``, ``selection_folds``); an idle one (``idle_dimensions``) none, a camera dimension only its
+    labelled mean. Returns W, b and per dimension the fit taken ("own", "all", "copy" or "mean"), its strength
     and both candidates' held-out squared errors."""
     count, window_frames, state_dim = windows.shape
     flat = windows.reshape(count, -1).astype(np.float64)
@@ -191,9 +192,11 @@ def fit_linear(
         own = np.arange(window_frames) * state_dim + column
         own_weight, own_bias, own_alpha, own_error = fit_ridge(flat[:, own], residual[:, [j]], episodes, folds=folds)
         own_errors.append(float(own_error[0]))
-        if idle[j] and kinds[j] != CAMERA:  # no correction to extrapolate where a new episode moves it
+        if kinds[j] == CAMERA:  # the camera network labels it from the labelled mean (see the module's docstring)
+            bias[j], alpha, fit = residual[:, j].mean(), 0.0, "mean"
+        elif idle[j]:  # no correction to extrapolate where a new episode moves it
             bias[j], alpha, fit = residual[:, j].mean(), 0.0, "copy"
-        elif kinds[j] == CAMERA or all_error[j] < CLEARLY_BETTER * own_error[0]:
+        elif all_error[j] < CLEARLY_BETTER * own_error[0]:
             weight[:, j] += all_weight[:, j]
             bias[j], alpha, fit = all_bias[j], all_alpha[j], "all"
         else:
