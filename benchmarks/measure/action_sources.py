@@ -1,10 +1,10 @@
-"""Every action dimension from its best source, on the generator's hand-guided arm (``VELOCITY_ARM``: six measured
-joint velocities over jittered real time steps, a keyboard gripper that only the wrist camera shows, joint_4 idle in
-the labelled episodes and moving in the held-out ones): for 2 and 5 labelled episodes, ``lerobot-train
---policy.type=iupe --policy.supervised=true`` with default flags, then ``lerobot-iupe-relabel`` on 10 held-out episodes
-with actions. Per dimension: the IDM's R², the ridge on the state window, the best difference copy, and for the
-gripper a ridge on 32×24 grey thumbnails of frames t and t+5 with the state window (fitted on the labelled episodes)
-and the accuracy of labels rounded to 0/1.
+"""Every action dimension from its best source, on the generator's hand-guided arm (``VELOCITY_ARM``: six measured joint
+velocities over jittered real time steps, a keyboard gripper that only the wrist camera shows, joint_4 idle in the
+labelled episodes and moving in the held-out ones): for 2 and 5 labelled episodes, ``lerobot-train --policy.type=iupe
+--policy.supervised=true --batch_size=64`` and otherwise default flags, then ``lerobot-iupe-relabel`` on 10 held-out
+episodes with actions. Per dimension: the IDM's R², the ridge on the state window, the best difference copy, and for the
+gripper a ridge on 32×24 grey thumbnails of frames t and t+5 with the state window (fitted on the labelled episodes) and
+the accuracy of labels rounded to 0/1.
 
     python benchmarks/measure/action_sources.py [--labelled 2 5] [--steps 1000] [--size 96 128]
 """
@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from steps import command_line, dry_run, parse_with_folders, train_once  # noqa: E402
 
 FRAMES, HELD_OUT, FPS, IDLE = 150, 10, 10, "joint_4"
+TRAIN = ("--policy.type=iupe", "--policy.supervised=true", "--batch_size=64")
 
 
 def recording(root: Path, episodes: int, seed: int, size: tuple[int, int], idle: tuple[str, ...]) -> Path:
@@ -81,7 +82,7 @@ def main() -> None:
     for count in args.labelled:
         labelled = recording(work / f"labelled-{count}", count, 0, size, (IDLE,))
         start = time.perf_counter()
-        checkpoint = train_once(labelled, work / f"run-{count}", steps=args.steps, threads=2)
+        checkpoint = train_once(labelled, work / f"run-{count}", *TRAIN, steps=args.steps, threads=2)
         train_s = time.perf_counter() - start
         report = dry_run(checkpoint, held_out)
         relabelled = work / f"relabelled-{count}"
