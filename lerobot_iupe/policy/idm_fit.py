@@ -23,6 +23,8 @@ def fit_idm(
     config, device = policy.config, policy.device_of_weights
     train = rng.permutation(len(data))
     to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
+    if policy.idm_prior is not None:  # the linear part first, in closed form; the network learns what it leaves
+        policy.fit_prior(policy.idm_prior.features(data.windows), data.actions)
     policy.train()
     for _ in range(config.idm_epochs):
         rng.shuffle(train)

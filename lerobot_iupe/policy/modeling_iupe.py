@@ -19,6 +19,7 @@ from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IUPEConfig
 from lerobot_iupe.policy.joint_idm import JointIDM
+from lerobot_iupe.policy.linear_prior import LinearPrior, fit_on_expert
 from lerobot_iupe.policy.networks import (
     CameraIDM,
     FusedEncoder,
@@ -85,6 +86,16 @@ class IUPEPolicy(PreTrainedPolicy):
                 self.idm_head.weight[: config.action_dim] = torch.eye(config.action_dim)
                 self.idm_head.bias.zero_()
         self.pm_head = make_action_head(hidden, config)
+        prior_columns = [c for c in layout.indices(i for i, v in enumerate(layout.visual) if not v) if c in columns]
+        self.idm_prior = (  # the linear part under a continuous IDM's network (linear_prior.py)
+            LinearPrior(frames, prior_columns, config.action_dim)
+            if config.is_continuous and not config.joint_idm and prior_columns
+            else None
+        )
+        if self.idm_prior is not None:  # the network's mean starts at 0: the IDM starts at the linear part
+            with torch.no_grad():
+                self.idm_head.weight[: config.action_dim] = 0.0
+                self.idm_head.bias[: config.action_dim] = 0.0
         # Per-value normalisation of a joined frame: vectors by the dataset's stats, fused cameras (already in
         # [0, 1]) left as they are; a lone camera is scaled in _prepare.
         state_dim = 1 if config.is_image and not layout.fused else layout.size
@@ -143,13 +154,31 @@ class IUPEPolicy(PreTrainedPolicy):
             state = window if columns is None else window[:, :, columns]
             return self.joint_idm_output(state, camera=self.camera_frames(window) if self.config.camera_dims else None)
         if self.layout.fused and self.idm_columns is None:
-            return self.idm_head(self.idm_encoder(self._fused_differences(window, k).flatten(1, 2)))
+            output = self.idm_head(self.idm_encoder(self._fused_differences(window, k).flatten(1, 2)))
+            return self.with_prior(output, window)
         frames = self._prepare(window)
         if self.idm_columns is not None:  # --policy.idm_observation_keys: the IDM reads some keys only
             frames = frames[:, :, self.idm_columns.to(frames.device)]
         s = frames[:, k : k + 1]
         differences = torch.cat([frames[:, :k], frames[:, k + 1 :]], dim=1) - s
-        return self.idm_head(self.idm_encoder(torch.cat([s, differences], dim=1).flatten(1, 2)))
+        return self.with_prior(
+            self.idm_head(self.idm_encoder(torch.cat([s, differences], dim=1).flatten(1, 2))), window
+        )
+
+    def with_prior(self, output: Tensor, window: Tensor) -> Tensor:
+        """The network's ``output`` with the fitted linear part of raw ``window`` added to its mean (scaled units;
+        not on a binary dimension, whose mean is a logit)."""
+        prior = self.idm_prior
+        if prior is None or not bool(prior.fitted):
+            return output
+        head, dims = self.idm_head, self.config.action_dim
+        shift = torch.where(head.binary, 0.0, head._scale(prior(window)))
+        return torch.cat([output[:, :dims] + shift.to(output.dtype), output[:, dims:]], dim=-1)
+
+    def fit_prior(self, features, actions) -> None:
+        """Fit the linear part on ``features`` (``LinearPrior.features`` of raw windows) and their actions."""
+        if self.idm_prior is not None:
+            self.idm_prior.fit(features, actions, ~self.idm_head.binary.cpu().numpy())
 
     @property
     def labelling_keys(self) -> list[str]:
@@ -318,6 +347,11 @@ class IUPEPolicy(PreTrainedPolicy):
                 window, camera, idm_rows = self.trainer.joint_idm_batch(rows)
                 idm_loss = self.idm_head.loss(self.joint_idm_output(window, camera=camera), expert.actions[idm_rows])
             else:
+                if self.idm_prior is not None and not self.trainer.prior_ready:  # on the first step
+                    self.trainer.prior_ready = True
+                    if not (self.trainer.resume and bool(self.idm_prior.fitted)):
+                        keep = ~self.idm_head.binary.cpu().numpy()
+                        fit_on_expert(self.idm_prior, expert, self.config.idm_window, keep)
                 window = expert.windows(rows, self.config.idm_window)
                 idm_loss = self.idm_head.loss(self.idm_window_output(window), labels)
             loss = pm_loss + idm_loss

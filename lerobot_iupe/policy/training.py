@@ -56,9 +56,9 @@ class IUPETrainer:
 
     def __init__(self, policy: nn.Module, dataset_meta: LeRobotDatasetMetadata, seed: int):
         self.policy, self.config, self.dataset_meta, self.seed = policy, policy.config, dataset_meta, seed
-        # --resume=true continues the saved cycle state exactly; --policy.path alone starts a new run from the
-        # checkpoint's weights (LeRobot's fine-tuning).
+        # --resume=true continues the saved state exactly; --policy.path alone starts a new run (LeRobot's fine-tuning).
         self.resume = resuming()
+        self.prior_ready = False  # a supervised IDM's linear part is fitted on the first step (linear_prior.py)
         self.state: TrainingState | None = None
         self.stats: dict[str, float] = {}  # the latest losses and rates, logged by lerobot-train
         self.selected_weights: dict[str, Tensor] | None = None  # the model ``algorithm.selects`` kept so far

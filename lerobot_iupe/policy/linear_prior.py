@@ -1,0 +1,72 @@
+"""The linear part of every other IDM of continuous actions (the cycle's, and a supervised one that is not the arm
+model): a ridge regression from the vector part of the IDM's window to a_t, solved in closed form, under the network,
+which learns what it leaves. Velocities, end-effector deltas and thrust are linear in the differences of the state's
+frames, which a ridge finds at once and a network trained for a few epochs on play does not (benchmarks/cycle_play.md:
+Meta-World's cycle IDM below the ridge on reach, drawer-open and button-press-topdown). Zero until fitted, so a
+checkpoint saved before it existed labels as it did."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from lerobot_iupe.data.readers import ExpertFrames
+from lerobot_iupe.policy.joint_fit import labelled_rows
+from lerobot_iupe.policy.joint_idm import MAX_FOLDS, fit_ridge
+
+
+def contiguous_folds(count: int) -> np.ndarray:
+    """A fold number per row: ``MAX_FOLDS`` contiguous blocks of rows in their order (an episode's neighbouring
+    frames, nearly equal, stay in one fold)."""
+    return np.arange(count) * min(MAX_FOLDS, max(count, 1)) // max(count, 1)
+
+
+class LinearPrior(nn.Module):
+    """a_t ≈ flat(window[:, :, columns]) @ weight + bias, raw action units, for windows (B, F, values) of joined
+    frames; ``columns``: the vector values the IDM reads. Binary dimensions (a gripper's logit) get none."""
+
+    def __init__(self, frames: int, columns: list[int], action_dim: int):
+        super().__init__()
+        self.register_buffer("columns", torch.as_tensor(columns, dtype=torch.long), persistent=False)
+        self.register_buffer("weight", torch.zeros(frames * len(columns), action_dim))
+        self.register_buffer("bias", torch.zeros(action_dim))
+        self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
+
+    def features(self, windows: np.ndarray | Tensor) -> np.ndarray | Tensor:
+        """The flattened vector values (N, F × columns) of raw windows (N, F, values)."""
+        columns = self.columns.cpu().numpy() if isinstance(windows, np.ndarray) else self.columns.to(windows.device)
+        return windows[:, :, columns].reshape(len(windows), -1)
+
+    def forward(self, window: Tensor) -> Tensor:
+        return self.features(window).float() @ self.weight + self.bias
+
+    @torch.no_grad()
+    def fit(self, features: np.ndarray, actions: np.ndarray, keep: np.ndarray) -> None:
+        """Fit on ``features`` (N, F × columns, as ``features`` gives them) and actions (N, A), each dimension's
+        strength chosen on contiguous folds; exact repeats (I^s draws copies of successful transitions) count once,
+        so that a copy is never judged by itself. Dimensions outside ``keep`` stay at 0."""
+        features = np.asarray(features, np.float64)
+        actions = np.asarray(actions, np.float64).reshape(len(features), -1)
+        if len(features) < 2 * MAX_FOLDS or not keep.any():
+            return
+        _, first = np.unique(np.concatenate([features, actions], axis=1), axis=0, return_index=True)
+        rows = np.sort(first)
+        features, actions = features[rows], actions[rows][:, keep]
+        weight, bias, _, _ = fit_ridge(features, actions, np.zeros(len(rows)), folds=contiguous_folds(len(rows)))
+        self.weight.zero_()
+        self.bias.zero_()
+        self.weight[:, torch.as_tensor(keep)] = torch.as_tensor(weight, dtype=torch.float32)
+        self.bias[torch.as_tensor(keep)] = torch.as_tensor(bias, dtype=torch.float32)
+        self.fitted.fill_(True)
+
+
+def fit_on_expert(prior: LinearPrior, expert: ExpertFrames, offsets: list[int], keep: np.ndarray) -> None:
+    """A supervised IDM's linear part, on this run's labelled frames (read in chunks: only the vector values are
+    kept, not the camera frames)."""
+    rows = labelled_rows(expert.episodes)
+    chunks = [
+        prior.features(expert.windows(rows[i : i + 4096], offsets)).cpu().numpy() for i in range(0, len(rows), 4096)
+    ]
+    actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
+    prior.fit(np.concatenate(chunks), actions, keep)
