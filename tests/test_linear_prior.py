@@ -22,17 +22,18 @@ def velocity_transitions(count: int, seed: int) -> Transitions:
     return Transitions.pairs(states[:-1], np.clip(3.0 * steps[:, :2], -1, 1), states[1:])
 
 
-def continuous_policy(**settings) -> IUPEPolicy:
+def continuous_policy(linear: bool | None = True) -> IUPEPolicy:
     config = IUPEConfig(
         input_features={OBS_STATE: PolicyFeature(type=FeatureType.STATE, shape=(3,))},
         action_low=[-1.0, -1.0], action_high=[1.0, 1.0], action_names=["vx", "vy"], device="cpu", idm_epochs=1,
-        **settings,
+        idm_linear_part=linear,
     )  # fmt: skip
     torch.manual_seed(0)
     return IUPEPolicy(config)
 
 
 def test_the_cycles_idm_labels_velocities_from_the_state_differences_in_one_epoch(tmp_path):
+    assert continuous_policy(linear=None).idm_prior is None  # the cycle's default, and checkpoints from before it
     policy = continuous_policy()
     assert isinstance(policy.idm_prior, LinearPrior)
     data, held_out = velocity_transitions(2000, 0), velocity_transitions(500, 1)

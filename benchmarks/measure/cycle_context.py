@@ -1,5 +1,6 @@
 """The IUPE cycle's first IDM against its window k and the keys it reads, on Meta-World: trained as the cycle trains
-it (``fit_idm`` on the play pre-demonstrations I_pre, 10 epochs of batch 256), then scored by R² on the expert's
+it (``fit_idm`` on the play pre-demonstrations I_pre, a tenth held out as the cycle holds it out, 10 epochs of batch
+256), then scored by R² on the expert's
 own actions (the benchmark's expert dataset collected with them), every transition of the 10 episodes, by action
 dimension too (hand x, y, z, grasp); beside it a ridge regression per dimension on the same windows and data, the
 simplest fit to beat. Means over seeds; a dimension the expert holds constant (the grasp of most tasks) has no R²
@@ -30,7 +31,7 @@ from lerobot.utils.constants import OBS_STATE
 from lerobot_iupe.data.readers import load_transitions
 from lerobot_iupe.data.storage import read_iupe_meta
 from lerobot_iupe.policy import IUPEConfig
-from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.algorithm import held_out_split, r_squared
 from lerobot_iupe.policy.idm_fit import fit_idm
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -67,22 +68,26 @@ def held_moves(pre: LeRobotDataset) -> float:
     return float(read_iupe_meta(Path(pre.root))["env"].get("play_held_moves", 0.0))
 
 
-def measure(work: Path, task: str, k: int, keys: str, seed: int) -> dict:
+def measure(work: Path, task: str, k: int, keys: str, seed: int, linear_part: bool = False) -> dict:
     pre, expert = dataset(work, task, "random"), dataset(work, task, "expert-actions")
     config = IUPEConfig(
         pre_demos_repo_id=pre.repo_id, pre_demos_root=str(pre.root), idm_context=k, idm_observation_keys=KEYS[keys],
-        device="cpu",
+        idm_linear_part=linear_part, device="cpu",
     )  # fmt: skip
     torch.manual_seed(seed)
     policy = make_policy(config, ds_meta=expert.meta)
     read = config.idm_keys
     train = load_transitions(pre, config.observation_keys, context=k)
     test = load_transitions(expert, config.observation_keys, context=k)
+    # As the cycle starts: a tenth of I_pre held out (what the network's gate is judged on), never the expert.
+    train_part, held_part = held_out_split(len(train), np.random.default_rng([seed, 0, 1]))
+    train, held = train.take(train_part), train.take(held_part)
     optimizer = torch.optim.Adam(policy.idm_parameters(), lr=config.idm_lr)
-    _, r2 = fit_idm(policy, optimizer, train, test, np.random.default_rng(seed))
+    fit_idm(policy, optimizer, train, held, np.random.default_rng(seed))
     policy.eval()
     with torch.no_grad():
         labels = policy.idm_head.mode(policy.idm_window_output(torch.as_tensor(test.windows))).numpy()
+    r2 = r_squared(labels, test.actions)
     columns = policy.layout.indices(config.observation_keys.index(key) for key in read)
     ridge = [
         ridge_r2(train.windows[..., columns], train.actions[:, [d]], test.windows[..., columns], test.actions[:, [d]])
@@ -105,6 +110,7 @@ def main() -> None:
     parser.add_argument("--ks", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--keys", nargs="+", default=list(KEYS))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--linear_part", action="store_true", help="--policy.idm_linear_part=true (linear_prior.py)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     rows = []
@@ -113,7 +119,7 @@ def main() -> None:
             for keys in args.keys:
                 for k in args.ks:
                     for seed in args.seeds:
-                        rows.append(measure(work, task, k, keys, seed))
+                        rows.append(measure(work, task, k, keys, seed, args.linear_part))
                         print(json.dumps(rows[-1]), flush=True)
     table = [
         "| task | play's held moves | IDM reads | k | IDM R² | its x / y / z / grasp | ridge R² "

@@ -76,6 +76,11 @@ class IUPEConfig(ObservationPolicyConfig):
     # end-effector deltas) or "camera" (no column follows it: a camera network labels it, with the state's ridge).
     # None = chosen from the labelled data (a checkpoint saved before this option existed reads as all "position").
     idm_source_kinds: list[str] | None = None
+    # A linear part under any other continuous IDM (policy/linear_prior.py): a ridge from the window's vector values,
+    # the network learning what it leaves. None = on when supervised (fitted on the frames it labels), off in the
+    # cycle: fitted on play, it moved Meta-World's first IDM both ways (benchmarks/cycle_play.md). Resolved when
+    # training starts (a checkpoint saved before this option existed reads as off).
+    idm_linear_part: bool | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
     n_obs_steps: int = 1
@@ -263,6 +268,8 @@ class IUPEConfig(ObservationPolicyConfig):
         if dataset_meta is not None:
             if self.idm_context is None:
                 self.idm_context = SUPERVISED_IDM_CONTEXT if self.supervised else 0
+            if self.idm_linear_part is None:
+                self.idm_linear_part = self.supervised
             if self.supervised and ACTION not in dataset_meta.features:
                 raise ValueError(
                     f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "

@@ -8,6 +8,7 @@ from torch import nn
 
 from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.linear_prior import judge_gate
 
 
 def fit_idm(
@@ -24,7 +25,7 @@ def fit_idm(
     train = rng.permutation(len(data))
     to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
     if policy.idm_prior is not None:  # the linear part first, in closed form; the network learns what it leaves
-        policy.fit_prior(policy.idm_prior.features(data.windows), data.actions)
+        policy.fit_prior(policy.idm_prior.features(data.windows), data.actions, fixed=True)
     policy.train()
     for _ in range(config.idm_epochs):
         rng.shuffle(train)
@@ -37,6 +38,8 @@ def fit_idm(
             optimizer.step()
     # lerobot-train clips (and logs) the norm of every parameter's gradient: only the policy model's may be left.
     optimizer.zero_grad(set_to_none=True)
+    if policy.idm_prior is not None and bool(policy.idm_prior.fitted):
+        judge_gate(policy, held_out)
     policy.eval()
     with torch.no_grad():
         predicted = []

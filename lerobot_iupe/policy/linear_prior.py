@@ -12,8 +12,14 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_iupe.data.readers import ExpertFrames
+from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.policy.joint_fit import labelled_rows
-from lerobot_iupe.policy.joint_idm import MAX_FOLDS, fit_ridge
+from lerobot_iupe.policy.joint_idm import MAX_FOLDS, RIDGE_ALPHAS, fit_ridge, gate_weights
+
+# The cycle's strength per frame: fitted on play and scored on the expert, a strength chosen on held-out play labelled
+# Meta-World push's expert worse (hand x / y / z R² 0.58 / 0.67 / 0.01 against 0.90 / 0.79 / 0.32 at this one;
+# benchmarks/measure/cycle_context.py).
+SHIFT_STRENGTH = 1e-3
 
 
 def contiguous_folds(count: int) -> np.ndarray:
@@ -32,20 +38,34 @@ class LinearPrior(nn.Module):
         self.register_buffer("weight", torch.zeros(frames * len(columns), action_dim))
         self.register_buffer("bias", torch.zeros(action_dim))
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
+        # The share of the network's correction kept when labelling, per dimension (``judge_gate``).
+        self.register_buffer("gate", torch.ones(action_dim))
 
     def features(self, windows: np.ndarray | Tensor) -> np.ndarray | Tensor:
-        """The flattened vector values (N, F × columns) of raw windows (N, F, values)."""
+        """[s_t, s_j − s_t for every other frame j] (N, F × columns), flattened, of the vector values of raw windows
+        (N, F, values) at offsets -k … k+1: as the network reads them. With the frames themselves, standardised, a
+        ridge shrinks the small differences that velocities are away."""
         columns = self.columns.cpu().numpy() if isinstance(windows, np.ndarray) else self.columns.to(windows.device)
-        return windows[:, :, columns].reshape(len(windows), -1)
+        values = windows[:, :, columns]
+        k = (values.shape[1] - 2) // 2
+        start = values[:, k : k + 1]
+        others = [values[:, :k] - start, values[:, k + 1 :] - start]
+        joined = (
+            np.concatenate([start, *others], axis=1)
+            if isinstance(values, np.ndarray)
+            else torch.cat([start, *others], dim=1)
+        )
+        return joined.reshape(len(windows), -1)
 
     def forward(self, window: Tensor) -> Tensor:
         return self.features(window).float() @ self.weight + self.bias
 
     @torch.no_grad()
-    def fit(self, features: np.ndarray, actions: np.ndarray, keep: np.ndarray) -> None:
+    def fit(self, features: np.ndarray, actions: np.ndarray, keep: np.ndarray, fixed: bool = False) -> None:
         """Fit on ``features`` (N, F × columns, as ``features`` gives them) and actions (N, A), each dimension's
-        strength chosen on contiguous folds; exact repeats (I^s draws copies of successful transitions) count once,
-        so that a copy is never judged by itself. Dimensions outside ``keep`` stay at 0."""
+        strength chosen on contiguous folds, or with ``fixed`` (the cycle's play, scored on an expert it never
+        saw) ``SHIFT_STRENGTH`` · N; exact repeats (I^s draws copies of successful transitions) count once, so that a
+        copy is never judged by itself. Dimensions outside ``keep`` stay at 0."""
         features = np.asarray(features, np.float64)
         actions = np.asarray(actions, np.float64).reshape(len(features), -1)
         if len(features) < 2 * MAX_FOLDS or not keep.any():
@@ -53,7 +73,8 @@ class LinearPrior(nn.Module):
         _, first = np.unique(np.concatenate([features, actions], axis=1), axis=0, return_index=True)
         rows = np.sort(first)
         features, actions = features[rows], actions[rows][:, keep]
-        weight, bias, _, _ = fit_ridge(features, actions, np.zeros(len(rows)), folds=contiguous_folds(len(rows)))
+        alphas = (SHIFT_STRENGTH * len(rows),) if fixed else RIDGE_ALPHAS
+        weight, bias, _, _ = fit_ridge(features, actions, rows, alphas, folds=contiguous_folds(len(rows)))
         self.weight.zero_()
         self.bias.zero_()
         self.weight[:, torch.as_tensor(keep)] = torch.as_tensor(weight, dtype=torch.float32)
@@ -70,3 +91,27 @@ def fit_on_expert(prior: LinearPrior, expert: ExpertFrames, offsets: list[int], 
     ]
     actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
     prior.fit(np.concatenate(chunks), actions, keep)
+
+
+@torch.no_grad()
+def judge_gate(policy: nn.Module, held_out: Transitions) -> None:
+    """Per dimension, the share of the network's correction that helps on ``held_out`` transitions it did not train
+    on (``gate_weights``); a binary dimension keeps all of it. On Meta-World the network, fitted to play, moved the
+    expert's labels away from the linear part's (reach, drawer-open: benchmarks/cycle_play.md)."""
+    prior, head, dims = policy.idm_prior, policy.idm_head, policy.config.action_dim
+    prior.gate.fill_(1.0)
+    if not len(held_out):
+        return
+    was_training = policy.training
+    policy.eval()
+    corrections, residuals = [], []
+    for start in range(0, len(held_out), 1024):
+        part = held_out.take(np.arange(start, min(start + 1024, len(held_out))))
+        window = torch.as_tensor(part.windows, device=prior.weight.device)
+        shift = head._scale(prior(window))
+        corrections.append((policy.idm_window_output(window)[:, :dims].float() - shift).cpu().numpy())
+        residuals.append((head._scale(torch.as_tensor(part.actions, device=shift.device)) - shift).cpu().numpy())
+    gate = gate_weights(np.concatenate(residuals), np.concatenate(corrections))
+    gate[head.binary.cpu().numpy()] = 1.0
+    prior.gate.copy_(torch.as_tensor(gate, dtype=torch.float32))
+    policy.train(was_training)

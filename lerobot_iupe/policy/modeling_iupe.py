@@ -89,7 +89,7 @@ class IUPEPolicy(PreTrainedPolicy):
         prior_columns = [c for c in layout.indices(i for i, v in enumerate(layout.visual) if not v) if c in columns]
         self.idm_prior = (  # the linear part under a continuous IDM's network (linear_prior.py)
             LinearPrior(frames, prior_columns, config.action_dim)
-            if config.is_continuous and not config.joint_idm and prior_columns
+            if config.idm_linear_part and config.is_continuous and not config.joint_idm and prior_columns
             else None
         )
         if self.idm_prior is not None:  # the network's mean starts at 0: the IDM starts at the linear part
@@ -167,18 +167,19 @@ class IUPEPolicy(PreTrainedPolicy):
 
     def with_prior(self, output: Tensor, window: Tensor) -> Tensor:
         """The network's ``output`` with the fitted linear part of raw ``window`` added to its mean (scaled units;
-        not on a binary dimension, whose mean is a logit)."""
+        not on a binary dimension, whose mean is a logit), the network's share gated when not training."""
         prior = self.idm_prior
         if prior is None or not bool(prior.fitted):
             return output
         head, dims = self.idm_head, self.config.action_dim
-        shift = torch.where(head.binary, 0.0, head._scale(prior(window)))
-        return torch.cat([output[:, :dims] + shift.to(output.dtype), output[:, dims:]], dim=-1)
+        shift = torch.where(head.binary, 0.0, head._scale(prior(window))).to(output.dtype)
+        gate = 1.0 if self.training else prior.gate.to(output.dtype)
+        return torch.cat([shift + gate * output[:, :dims], output[:, dims:]], dim=-1)
 
-    def fit_prior(self, features, actions) -> None:
+    def fit_prior(self, features, actions, fixed: bool) -> None:
         """Fit the linear part on ``features`` (``LinearPrior.features`` of raw windows) and their actions."""
         if self.idm_prior is not None:
-            self.idm_prior.fit(features, actions, ~self.idm_head.binary.cpu().numpy())
+            self.idm_prior.fit(features, actions, ~self.idm_head.binary.cpu().numpy(), fixed)
 
     @property
     def labelling_keys(self) -> list[str]:
