@@ -59,6 +59,8 @@ def main() -> None:
     )
     arm.add_argument("--gravity", type=float, nargs=2, default=default.gravity, metavar=("LIFT", "ELBOW"),
                      help="degrees gravity holds shoulder_lift and elbow_flex below their targets at most")  # fmt: skip
+    arm.add_argument("--wrist_gravity", type=float, default=default.wrist_gravity,
+                     help="degrees gravity holds wrist_flex below its target at most, by the whole arm's pose")  # fmt: skip
     arm.add_argument("--grasp_probability", type=float, default=default.grasp_probability,
                      help="probability that closing the gripper grasps an object, which stops the jaws")  # fmt: skip
     arm.add_argument("--reading_noise", type=float, default=default.reading_noise, help="noise of a joint reading")
@@ -68,6 +70,7 @@ def main() -> None:
     try:
         dynamics = ArmDynamics(
             delay=args.delay, response=args.response, dead_band=args.dead_band, gravity=tuple(args.gravity),
+            wrist_gravity=args.wrist_gravity,
             grasp_probability=args.grasp_probability, quantise=not args.no_quantise,
             reading_noise=args.reading_noise, tremor=args.tremor,
         )  # fmt: skip

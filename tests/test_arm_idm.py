@@ -26,6 +26,7 @@ from lerobot_iupe.data.arm_recording import (
     OTHER_LEADER,
     SO101_MISCALIBRATED,
     ArmDynamics,
+    gravity_offset,
     teleoperated_episode,
 )
 from lerobot_iupe.data.arm_writer import write_arm_recording
@@ -423,3 +424,10 @@ def test_the_generator_refuses_cameras_on_another_body_and_unknown_idle_joints_w
     with pytest.raises(ValueError, match="idle joints \\['wrist'\\] are not among"):
         write_arm_recording(root, 1, 10, cameras=False, idle=("wrist",))
     assert not root.exists()
+
+
+def test_wrist_gravity_sags_wrist_flex_by_the_whole_arms_pose():
+    level, raised = np.zeros(6), np.array([0.0, 60.0, 0.0, 0.0, 0.0, 0.0])
+    assert gravity_offset(level, (2.5, 4.0))[3] == 0.0  # off by default
+    assert gravity_offset(level, (2.5, 4.0), 3.0)[3] == pytest.approx(-3.0)
+    assert gravity_offset(raised, (2.5, 4.0), 3.0)[3] == pytest.approx(-1.5)  # the shoulder's angle moves it

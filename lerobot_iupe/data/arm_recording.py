@@ -115,6 +115,9 @@ class ArmDynamics:
     dead_band: float = 0.3
     # Degrees by which gravity holds shoulder_lift and elbow_flex below their targets, at the pose of greatest load.
     gravity: tuple[float, float] = (2.5, 4.0)
+    # Degrees by which gravity holds wrist_flex below its target at most, by the whole arm's pose (the upper arm's,
+    # the forearm's and the hand's angles): a follower joint whose error only the other joints' windows explain.
+    wrist_gravity: float = 0.0
     # Probability that a closing of the gripper grasps an object, which stops the jaws at its width.
     grasp_probability: float = 0.5
     # Encoder resolution: 4096 steps per turn (degrees), the gripper's 0 … 100 spanning about a third of a turn.
@@ -132,13 +135,15 @@ class ArmDynamics:
 ENCODER_STEP = np.array([360.0 / 4096] * 5 + [100.0 / 1365], dtype=np.float64)
 
 
-def gravity_offset(q: np.ndarray, gravity: tuple[float, float]) -> np.ndarray:
+def gravity_offset(q: np.ndarray, gravity: tuple[float, float], wrist: float = 0.0) -> np.ndarray:
     """How far below its command gravity holds each joint at ``q`` (degrees): the load on shoulder_lift grows with
-    how far out the upper arm and forearm reach, on elbow_flex with the forearm's reach alone."""
+    how far out the upper arm and forearm reach, on elbow_flex with the forearm's reach alone, on wrist_flex with the
+    hand's angle over the whole arm."""
     lift, elbow = np.radians(q[1]), np.radians(q[1] + q[2])
     offset = np.zeros(len(JOINTS))
     offset[1] = -gravity[0] * (0.6 * np.cos(lift) + 0.4 * np.cos(elbow))
     offset[2] = -gravity[1] * np.cos(elbow)
+    offset[3] = -wrist * np.cos(np.radians(q[1] + q[2] + q[3]))
     return offset
 
 
@@ -289,7 +294,9 @@ def teleoperated_episode(
     for t in range(frames):
         positions[t] = q
         command = commands[np.maximum(t - delays, 0), columns]
-        error = command + gravity_offset(q, dynamics.gravity) - q if body.gravity else command - q
+        error = (
+            command + gravity_offset(q, dynamics.gravity, dynamics.wrist_gravity) - q if body.gravity else command - q
+        )
         q = q + response * np.where(np.abs(error) > dead_band, error, 0.0)
         if grip is not None:  # the object, as long as the delayed command holds it
             q[grip] = max(q[grip], stops[min(max(t + 1 - delays[grip], 0), frames - 1)])
