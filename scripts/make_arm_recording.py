@@ -60,7 +60,7 @@ def main() -> None:
     arm.add_argument("--gravity", type=float, nargs=2, default=default.gravity, metavar=("LIFT", "ELBOW"),
                      help="degrees gravity holds shoulder_lift and elbow_flex below their targets at most")  # fmt: skip
     arm.add_argument("--wrist_gravity", type=float, default=default.wrist_gravity,
-                     help="degrees gravity holds wrist_flex below its target at most, by the whole arm's pose")  # fmt: skip
+                     help="degrees gravity holds wrist_flex below its target at most, by the arm's pose")  # fmt: skip
     arm.add_argument("--grasp_probability", type=float, default=default.grasp_probability,
                      help="probability that closing the gripper grasps an object, which stops the jaws")  # fmt: skip
     arm.add_argument("--reading_noise", type=float, default=default.reading_noise, help="noise of a joint reading")

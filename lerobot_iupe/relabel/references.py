@@ -1,8 +1,8 @@
 """The simplest fits beside the IDM, on a dataset that already has actions (``--dry_run=true``): for the linear-first
 model (``policy.joint_idm``), per joint, the plain ridge regression fitted on the IDM's own labelled frames and
 window, the best copy of a future state of the same name a_t ≈ s_{t+k} (none for an action whose name is not a
-state's: its units are another arm's) and the best difference copy of the column of the same name or stem. A user
-sees at once whether the IDM earns its place."""
+state's: its units are another arm's) and the best difference copy of the column of the same name or stem (else of
+the column the IDM follows). A user sees at once whether the IDM earns its place."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from lerobot_iupe.data.readers import window_indices
-from lerobot_iupe.policy.action_sources import max_lag, named_sources, stem_sources
+from lerobot_iupe.policy.action_sources import CAMERA, max_lag, named_sources, stem_sources
 from lerobot_iupe.policy.algorithm import r_squared
 
 
@@ -82,6 +82,9 @@ def joint_references(
     ridge = policy.idm_encoder.reference(window.to(policy.device_of_weights)).cpu().numpy()
     named = named_sources(config.action_names, state_names) if state_names else [None] * config.action_dim
     stems = stem_sources(config.action_names, state_names) if state_names else [None] * config.action_dim
+    # A dimension named after no column: the difference copy of the column the IDM found it follows (any units).
+    sources = zip(stems, config.joint_state_columns, config.source_kinds, strict=True)
+    stems = [stem if stem is not None or kind == CAMERA else column for stem, column, kind in sources]
     copies = best_copies(states, actions, named, bounds, rows, max_lag(config.fps))
     lowest = -min(1, config.idm_context or 0)
     differences = best_difference_copies(states, actions, stems, bounds, rows, lowest, max_lag(config.fps))
