@@ -359,7 +359,7 @@ def generated_pair(data_dir, name: str, body, idle: tuple[str, ...] = ()) -> tup
     return tuple(roots)
 
 
-def default_run_and_dry_run(shared_dir, labelled, held_out) -> tuple[dict, dict]:
+def default_run_and_dry_run(shared_dir, labelled, held_out) -> tuple[dict, dict, str]:
     """lerobot-train with the defaults on ``labelled``, then the dry run's table on ``held_out``; and the config."""
     out = shared_dir / "runs" / labelled.name
     run = train_once(
@@ -371,12 +371,14 @@ def default_run_and_dry_run(shared_dir, labelled, held_out) -> tuple[dict, dict]
         "lerobot-iupe-relabel", f"--policy.path={run / CHECKPOINT}", "--dataset.repo_id=local/x",
         f"--dataset.root={held_out}", "--dry_run=true", check=True,
     )  # fmt: skip
-    return reference_table(result.stdout), json.loads((run / CHECKPOINT / "config.json").read_text())
+    return reference_table(result.stdout), json.loads((run / CHECKPOINT / "config.json").read_text()), result.stdout
 
 
 def test_a_leader_of_another_arm_is_labelled_no_worse_than_a_ridge_regression_on_any_joint(data_dir, shared_dir):
     labelled, held_out = generated_pair(data_dir, "other-leader", OTHER_LEADER)
-    table, config = default_run_and_dry_run(shared_dir, labelled, held_out)
+    table, config, stdout = default_run_and_dry_run(shared_dir, labelled, held_out)
+    # Every dimension has a difference copy: of the column of its name, else of the column the IDM follows.
+    assert len(re.findall(r"^  \S+ .*\(d=\s*-?\d+\)", stdout, re.MULTILINE)) == 6, stdout
     assert len(table) == 6 and config["joint_state_columns"] == [0, 1, 2, 4, 5, 6]
     for joint, (idm, lag, ridge, copy) in table.items():
         assert idm >= ridge - 0.005, f"{joint}: IDM {idm} vs ridge {ridge}"
@@ -386,7 +388,7 @@ def test_a_leader_of_another_arm_is_labelled_no_worse_than_a_ridge_regression_on
 
 def test_a_humanoid_arm_idle_in_the_labelled_episodes_is_labelled_no_worse_than_its_copy(data_dir, shared_dir):
     labelled, held_out = generated_pair(data_dir, "humanoid-idle-left", HUMANOID, idle=HUMANOID_LEFT_ARM)
-    table, config = default_run_and_dry_run(shared_dir, labelled, held_out)
+    table, config, _ = default_run_and_dry_run(shared_dir, labelled, held_out)
     assert len(table) == 26
     for joint in HUMANOID_LEFT_ARM:
         idm, _, ridge, copy = table[joint]
