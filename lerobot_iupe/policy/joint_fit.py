@@ -25,6 +25,7 @@ from lerobot_iupe.policy.action_sources import (
     stem_sources,
 )
 from lerobot_iupe.policy.action_space import feature_names
+from lerobot_iupe.policy.camera_reference import reference_rows
 from lerobot_iupe.policy.joint_idm import GATE_SHARE, gate_weights
 from lerobot_iupe.policy.train_run import training_episodes
 
@@ -111,6 +112,8 @@ class JointFit:
             named = named_joints(policy.dataset_meta, policy.config.joint_state_columns)
             fit = encoder.fit(windows, actions, expert.episodes[rows], named)
             kinds = policy.config.source_kinds
+            if policy.config.camera_dims:
+                self.fit_camera_reference(rows)
             log.info(
                 f"IUPE linear-first IDM: sources {kinds}, lags {policy.config.idm_joint_lags} frames, window "
                 f"{policy.config.idm_window[0]} … {policy.config.idm_window[-1]}, fits {fit['fit']}, ridge alphas "
@@ -127,6 +130,18 @@ class JointFit:
             return None
         frames = self.expert.windows(rows, config.camera_offsets)
         return frames[:, :, self.policy.camera_columns.to(frames.device)]
+
+    @torch.no_grad()
+    def fit_camera_reference(self, rows: np.ndarray) -> None:
+        """The camera dimensions' thumbnail ridge, on (at most ``MAX_REFERENCE_ROWS`` of) the labelled rows."""
+        rows = reference_rows(rows)
+        reference = self.policy.idm_camera.reference
+        thumbnails = np.concatenate(
+            [reference.thumbnails(self.camera(rows[i : i + 512])).cpu().numpy() for i in range(0, len(rows), 512)]
+        )
+        dims = self.policy.config.camera_dims
+        actions = self.expert.actions[torch.as_tensor(rows, device=self.expert.actions.device)][:, dims]
+        reference.fit(thumbnails, actions.cpu().numpy(), self.expert.episodes[rows])
 
     def training_rows(self, rows: np.ndarray) -> np.ndarray:
         """The batch's rows the network trains on (the gate's rows left out)."""

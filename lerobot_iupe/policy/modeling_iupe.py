@@ -202,6 +202,10 @@ class IUPEPolicy(PreTrainedPolicy):
         frames = [self.config.idm_window.index(offset) for offset in self.config.camera_offsets]
         return window[:, frames][:, :, self.camera_columns.to(window.device)]
 
+    def camera_reference(self, window: Tensor) -> Tensor:
+        """The camera dimensions' thumbnail ridge (``camera_reference.py``) on joined frames at the IDM's offsets."""
+        return self.idm_camera.reference(self.camera_frames(window))
+
     def joint_idm_output(self, window: Tensor, gated: bool | None = None, camera: Tensor | None = None) -> Tensor:
         """The linear-first model's distribution parameters for a_t → joint-state windows (B, F, D), raw units: the
         head's mean is the linear prior (copy plus ridge) plus the network's correction (for a camera dimension,

@@ -13,6 +13,7 @@ from torch import Tensor, nn
 
 from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.policy.algorithm import choose_actions
+from lerobot_iupe.policy.camera_reference import ThumbnailRidge
 
 
 class TokenSelfAttention(nn.Module):
@@ -205,6 +206,7 @@ class CameraIDM(nn.Module):
         super().__init__()
         self.encoder = FusedEncoder(layout, len(config.camera_offsets), config)
         self.out = nn.Linear(config.hidden_dim, dims)
+        self.reference = ThumbnailRidge(layout, len(config.camera_offsets), dims)  # what it must beat
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 

@@ -109,7 +109,8 @@ class RelabelReport:
     # Continuous: R² of each action dimension against the existing actions (None without them).
     agreement_per_dimension: list[float] | None = None
     # The arm model's references on the same frames, per dimension (``relabel.references``): "ridge" (R² of the
-    # plain ridge regression on the IDM's own training data and window), "copy" and "copy_lag" (the best a_t ≈ s_{t+k}).
+    # plain ridge regression on the IDM's own training data and window), "copy" and "copy_lag" (the best a_t ≈ s_{t+k}),
+    # "thumbnails" (a camera dimension's ridge on grey thumbnails; NaN elsewhere).
     references: dict | None = None
     processes: int = 1
     written: bool = False
@@ -155,8 +156,9 @@ class RelabelReport:
     def reference_table(self) -> list[str]:
         """R² per dimension of the IDM (with its lag in frames) beside its references — the ridge regression, the best
         copy s_{t+k} of the state of the same name and the best difference copy g·(s_{t+d+1} − s_{t+d}) + b of the
-        column of the same name or stem — and the source the IDM reads ("–": no such column). A dimension where the
-        IDM is more than 0.005 below the ridge regression or a copy is marked."""
+        column of the same name or stem — and the source the IDM reads ("–": no such column); a camera dimension's
+        ridge is on 32×24 grey thumbnails of its frames. A dimension where the IDM is more than 0.005 below the ridge
+        regression or a copy is marked."""
         refs = self.references
         width = max(len(n) for n in self.action_names)
         lines = [
@@ -168,8 +170,11 @@ class RelabelReport:
         differences = refs.get("difference") or [float("nan")] * count
         difference_lags = refs.get("difference_lag") or [-99] * count
         kinds = refs.get("source") or ["position"] * count
+        thumbnails = refs.get("thumbnails") or [float("nan")] * count
+        ridges = [r if np.isnan(t) else t for r, t in zip(refs["ridge"], thumbnails, strict=True)]
+        kinds = [k if np.isnan(t) else f"{k} (ridge on thumbnails)" for k, t in zip(kinds, thumbnails, strict=True)]
         rows = zip(
-            self.action_names, self.agreement_per_dimension, lags, refs["ridge"], refs["copy"], refs["copy_lag"],
+            self.action_names, self.agreement_per_dimension, lags, ridges, refs["copy"], refs["copy_lag"],
             differences, difference_lags, kinds, strict=True,
         )  # fmt: skip
         for name, idm, lag, ridge, copy, copy_lag, difference, difference_lag, kind in rows:

@@ -39,7 +39,16 @@ def span_outputs(policy: IUPEPolicy, reader: FrameReader, span: LabelSpan, parts
     index = window_indices(t, policy.config.idm_window, np.full(len(t), span.first), np.full(len(t), span.last))
     frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
     passes = torch.as_tensor(index - span.lo, device=device).split(IDM_BATCH)
-    return torch.cat([policy.labelling_output(frames[part]).float().cpu() for part in passes])
+    return torch.cat([labelling_pass(policy, frames[part]) for part in passes])
+
+
+def labelling_pass(policy: IUPEPolicy, window: torch.Tensor) -> torch.Tensor:
+    """The IDM's outputs of one pass; with camera dimensions, their thumbnail ridge's predictions ride along after
+    them (the dry run's reference, ``assemble_labels``), from the frames already decoded."""
+    output = policy.labelling_output(window)
+    if policy.config.camera_dims:
+        output = torch.cat([output, policy.camera_reference(window).to(output.dtype)], dim=-1)
+    return output.float().cpu()
 
 
 def _work(policy, reader: FrameReader, spans: dict, tasks, out, device: str | None) -> None:
@@ -164,7 +173,8 @@ def label_spans_with_idm(
     # Labels are chosen on the CPU from the IDM's outputs, whatever device it runs on: the episode's generator is a
     # CPU one, and a CUDA IDM then labels as the CPU one does.
     config, head = policy.config, copy.deepcopy(policy.idm_head).cpu()
-    results: dict[int, tuple[list, list]] = {}
+    width = head.out_features  # the outputs' own columns; any after them are references (``labelling_pass``)
+    results: dict[int, tuple[list, list, list]] = {}
     generators: dict[int, torch.Generator] = {}
     if workers:
         outputs = outputs_in_workers(policy, reader, spans, workers, device)
@@ -174,6 +184,7 @@ def label_spans_with_idm(
     total = sum(span.stop - span.start for span in spans)
     with tqdm(total=total, desc="relabel", unit="frame", unit_scale=True, disable=not progress) as bar:
         for span, output in outputs:
+            output, reference = output[:, :width], output[:, width:]
             generator = generators.setdefault(span.episode, episode_generator(seed, span.episode))
             chosen = head.choose(output, mode == "sample", generator)
             if config.is_continuous:
@@ -181,11 +192,12 @@ def label_spans_with_idm(
                 confidence = 0.5 * std  # per dimension, in units of the action range (scaled space spans 2)
             else:
                 confidence = head.likelihood(output, chosen)
-            labels, confidences = results.setdefault(span.episode, ([], []))
+            labels, confidences, references = results.setdefault(span.episode, ([], [], []))
             labels.append(chosen.numpy())
             confidences.append(confidence.numpy())
+            references.append(reference.numpy())
             bar.update(span.stop - span.start)
-    return {episode: (np.concatenate(labels), np.concatenate(conf)) for episode, (labels, conf) in results.items()}
+    return {episode: tuple(np.concatenate(part) for part in parts) for episode, parts in results.items()}
 
 
 def assemble_labels(
@@ -201,13 +213,27 @@ def assemble_labels(
     confidence = np.zeros((total - base, *labels.shape[1:]), dtype=np.float32)
     for episode, (first, end) in enumerate(bounds):
         if episode in per_episode:
-            episode_labels, episode_confidence = per_episode[episode]
+            episode_labels, episode_confidence = per_episode[episode][:2]
             labels[first - base : end - 1 - base] = episode_labels.reshape(labels[first - base : end - 1 - base].shape)
             confidence[first - base : end - 1 - base] = episode_confidence
         if end - first > 1:
             labels[end - 1 - base] = labels[end - 2 - base]
             confidence[end - 1 - base] = confidence[end - 2 - base]
     return labels, confidence
+
+
+def assemble_references(per_episode: dict[int, tuple], bounds: list[tuple[int, int]]) -> np.ndarray | None:
+    """The references that rode along with the labels (``labelling_pass``), one row per frame in frame order (an
+    episode's last frame, which has no window, NaN); None without any."""
+    widths = {parts[2].shape[-1] for parts in per_episode.values()}
+    if not widths or widths == {0}:
+        return None
+    base, total = bounds[0][0], bounds[-1][1]
+    references = np.full((total - base, max(widths)), np.nan, dtype=np.float32)
+    for episode, (first, end) in enumerate(bounds):
+        if episode in per_episode:
+            references[first - base : end - 1 - base] = per_episode[episode][2]
+    return references
 
 
 def last_frame_mask(meta: LeRobotDatasetMetadata, total_frames: int) -> np.ndarray:

@@ -97,3 +97,16 @@ def joint_references(
         "lag": list(config.idm_joint_lags),
         "source": config.source_kinds,
     }
+
+
+def thumbnail_references(policy, thumbnails: np.ndarray | None, actions: np.ndarray, rows: np.ndarray) -> list[float]:
+    """Per dimension, R² on ``rows`` of the camera dimensions' thumbnail ridge (``camera_reference.py``; its
+    predictions ``thumbnails``, one column per camera dimension); NaN for every other dimension, and for a checkpoint
+    saved before it existed."""
+    scores = [float("nan")] * policy.config.action_dim
+    if thumbnails is None or not bool(policy.idm_camera.reference.fitted):
+        return scores
+    actions = actions.reshape(len(actions), -1)
+    for column, dim in enumerate(policy.config.camera_dims):
+        scores[dim] = r_squared(thumbnails[rows, column], actions[rows, dim])
+    return scores

@@ -37,13 +37,14 @@ from lerobot_iupe.relabel.config import RelabelConfig, RelabelReport
 from lerobot_iupe.relabel.consistency import pull_toward_observation
 from lerobot_iupe.relabel.labelling import (
     assemble_labels,
+    assemble_references,
     available_cores,
     gather_on_first,
     label_spans_with_idm,
     last_frame_mask,
     process_group,
 )
-from lerobot_iupe.relabel.references import joint_references, per_dimension_r2
+from lerobot_iupe.relabel.references import joint_references, per_dimension_r2, thumbnail_references
 from lerobot_iupe.relabel.writing import action_feature, copy_dataset, pull_dataset, write_labels
 
 
@@ -115,6 +116,8 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
                 states = column_array(dataset.hf_dataset, OBS_STATE).astype(np.float32).reshape(total, -1)
                 state_names = feature_names(meta.features.get(OBS_STATE))
                 references = joint_references(policy, states, existing, bounds, np.flatnonzero(inner), state_names)
+                thumbnails = assemble_references(per_episode, bounds)
+                references["thumbnails"] = thumbnail_references(policy, thumbnails, existing, np.flatnonzero(inner))
         else:
             agreement = float((existing.reshape(total)[inner] == labels[inner]).mean())
     if config.is_continuous:
