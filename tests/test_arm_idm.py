@@ -127,7 +127,7 @@ def test_a_velocity_or_delta_takes_the_difference_of_its_column_at_its_own_lag_s
     assert at(0, 2) == pytest.approx(1) and at(-1, 2) == pytest.approx(-1)
 
 
-def test_an_idle_difference_keeps_the_gain_of_the_others_and_no_correction():
+def test_an_idle_difference_borrows_the_others_filter_and_gain():
     rng = np.random.default_rng(3)
     walk = rng.normal(size=(600, 4)).cumsum(axis=0)
     walk[:, 3] = 5.0 + rng.normal(0, 1e-3, 600)  # the fourth joint rests in the labelled episodes
@@ -142,7 +142,9 @@ def test_an_idle_difference_keeps_the_gain_of_the_others_and_no_correction():
     offsets = list(range(0, 12))
     windows = walk[np.clip(inside[:, None] + np.asarray(offsets), 0, len(walk) - 1)]
     weight, bias, report = fit_linear(windows, actions[inside], episodes[inside], offsets, sources, [False] * 4)
-    assert report["fit"][3] == "copy"
+    assert report["fit"][3] == "borrowed"  # the others' filter, not a fit to its own noise
+    own = np.arange(len(offsets)) * 4 + 3
+    assert abs(weight[own, 3].sum()) < 1e-9  # differences only: its resting pose sends no label anywhere
     # A new episode moves it: labelled as 10·(s_{t+1} − s_t), the others' gain, not by a fit to its noise.
     moving = rng.normal(size=(50, 4)).cumsum(axis=0)
     new_windows = moving[np.clip(np.arange(50)[:, None] + np.asarray(offsets), 0, 49)].reshape(50, -1)
@@ -433,3 +435,13 @@ def test_wrist_gravity_sags_wrist_flex_by_the_whole_arms_pose():
     assert gravity_offset(level, (2.5, 4.0))[3] == 0.0  # off by default
     assert gravity_offset(level, (2.5, 4.0), 3.0)[3] == pytest.approx(-3.0)
     assert gravity_offset(raised, (2.5, 4.0), 3.0)[3] == pytest.approx(-1.5)  # the shoulder's angle moves it
+
+
+def test_a_dimension_without_a_name_never_chooses_a_column_that_barely_moved():
+    rng = np.random.default_rng(0)
+    walks = np.cumsum(rng.normal(size=(600, 5)), axis=0)
+    states = np.concatenate([walks[:, :4], 1e-3 * walks[:, 4:]], axis=1)  # the last column barely moves
+    episodes = np.repeat([0, 1], 300)
+    actions = np.stack([walks[:, 4], walks[:, 0]], axis=1)  # the first follows only the still column
+    columns, _, kinds = action_sources(states, actions, episodes, [None, None], 10, cameras=True)
+    assert columns[0] != 4 and kinds == ["camera", "position"], (columns, kinds)

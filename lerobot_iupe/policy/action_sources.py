@@ -177,14 +177,14 @@ def action_sources(
 
     A dimension named as a state column (``named``) copies that column's position at its best copy lag (the least
     mean absolute difference), unless its position follows it less than ``RESEMBLANCE`` and its difference does.
-    Another takes, among the column of the same stem (``stems``: ``joint_0_vel`` → ``joint_0``) or else every
-    column, the position a_t ~ s_{t+k} (k = 0 … ``longest``) or difference a_t ~ s_{t+d+1} − s_{t+d}
-    (d = ``lowest`` … ``longest`` − 1) of largest |correlation|. One that follows none at ``RESEMBLANCE`` is read off
-    the cameras where the IDM has some (``cameras``), else keeps its closest source. A dimension idle in the labelled
-    frames (``idle_dimensions``) whose name ties it to a column keeps that column, as a difference where its name says
-    it is a rate (``rate_names``, then at the median lag of the other differences: its own fits noise). None where no
-    dimension follows the state (with cameras) or most do not (without): such actions (an engine's thrust) keep the
-    IDM of the whole observation."""
+    Another takes, among the column of the same stem (``stems``: ``joint_0_vel`` → ``joint_0``) or else every column
+    that moved in the labelled frames, the position a_t ~ s_{t+k} (k = 0 … ``longest``) or difference a_t ~
+    s_{t+d+1} − s_{t+d} (d = ``lowest`` … ``longest`` − 1) of largest |correlation|. One that follows none at
+    ``RESEMBLANCE`` is read off the cameras where the IDM has some (``cameras``), else keeps its closest source. A
+    dimension idle in the labelled frames (``idle_dimensions``) whose name ties it to a column keeps that column, as
+    a difference where its name says it is a rate (``rate_names``, then at the median lag of the other differences:
+    its own fits noise). None where no dimension follows the state (with cameras) or most do not (without): such
+    actions (an engine's thrust) keep the IDM of the whole observation."""
     states, actions = np.asarray(states, np.float64), np.asarray(actions, np.float64)
     count = len(named)
     stems = stems or [None] * count
@@ -197,10 +197,13 @@ def action_sources(
         errors = joint_copy_errors(states, actions[:, same], episodes, [named[j] for j in same], longest)
         copy_lags = dict(zip(same, np.argmin(errors, axis=0).tolist(), strict=True))
     idle = idle_dimensions(actions)
+    # A column that barely moved in the labelled frames follows anything by chance, and a new episode that moves it
+    # would move the labels of what chose it: no dimension without a name chooses it.
+    moving = np.flatnonzero(~idle_dimensions(states)).tolist()
     columns, lags, kinds, strong = [0] * count, [0] * count, [POSITION] * count, [False] * count
     for j in range(count):
         own = named[j] if named[j] is not None else stems[j]
-        candidates = None if own is None else [own]
+        candidates = moving if own is None else [own]
         position = _best(positions[:, j], candidates)
         difference = _best(differences[:, j], candidates) if len(differences) else (-1.0, 0, 0)
         if named[j] is not None and not (position[0] < RESEMBLANCE <= difference[0]):

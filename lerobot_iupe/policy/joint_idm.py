@@ -22,8 +22,10 @@ the dimension (a gripper commanded from a keyboard whose opening no column recor
 its labelled mean: a ridge over every column extrapolated without bound where a joint that barely moved in 2 labelled
 episodes moved in a new one (the generator's velocity arm: the gripper at R² −7,511). Each dimension takes the kind that
 follows it more closely on the labelled frames (``action_sources``). A dimension that barely moved in the labelled
-episodes (``idle_dimensions``) keeps the bare copy of its source (gain 1 for a namesake's position, the gain of the
-other differences for a difference) with no correction, so that a new episode that moves it is not extrapolated."""
+episodes (``idle_dimensions``) keeps the bare copy of its source (gain 1 for a namesake's position) with no
+correction, so that a new episode that moves it is not extrapolated; an idle difference borrows the filter the other
+differences fitted over their own windows (their median, made to sum to 0, at the others' median gain): on the
+generator's velocity arm with 2 labelled episodes its joint_4 went from R² 0.774 (the bare difference) to 0.895."""
 
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from lerobot_iupe.policy.action_sources import CAMERA, DIFFERENCE, POSITION, idle_dimensions
+from lerobot_iupe.policy.action_sources import CAMERA, DIFFERENCE, POSITION, RESEMBLANCE, idle_dimensions
 
 RIDGE_ALPHAS = tuple(10.0**p for p in range(-3, 6))
 MAX_FOLDS = 20
@@ -175,8 +177,9 @@ def fit_linear(
     the copy (``copy_map``) plus, per dimension, a ridge correction shrunk toward it, over its own source column at
     every frame of the window, or over every column where that predicts held-out episodes clearly better
     (``CLEARLY_BETTER``, ``selection_folds``); an idle one (``idle_dimensions``) none, a camera dimension only its
-    labelled mean. Returns W, b and per dimension the fit taken ("own", "all", "copy" or "mean"), its strength
-    and both candidates' held-out squared errors."""
+    labelled mean, an idle difference the other differences' filter (``borrowed_filter``). Returns W, b and per
+    dimension the fit taken ("own", "all", "copy", "borrowed" or "mean"), its strength and both candidates' held-out
+    squared errors."""
     count, window_frames, state_dim = windows.shape
     flat = windows.reshape(count, -1).astype(np.float64)
     actions = np.asarray(actions, np.float64)
@@ -184,6 +187,7 @@ def fit_linear(
     idle = idle_dimensions(actions)
     copy = copy_map(flat, actions, state_dim, offsets, sources, named, idle)
     residual = actions - flat @ copy
+    followed = 1.0 - residual.var(axis=0) / np.maximum(actions.var(axis=0), 1e-12) >= RESEMBLANCE**2
     folds = selection_folds(episodes)
     all_weight, all_bias, all_alpha, all_error = fit_ridge(flat, residual, episodes, folds=folds)
     weight, bias = copy.copy(), np.zeros(actions.shape[1])
@@ -204,8 +208,41 @@ def fit_linear(
             bias[j], alpha, fit = own_bias[0], own_alpha[0], "own"
         taken.append(fit)
         alphas.append(float(alpha))
+    for j in np.flatnonzero(idle & (np.asarray(kinds) == DIFFERENCE)):
+        own = np.arange(window_frames) * state_dim + columns[j]
+        shape = borrowed_filter(weight, copy, sources, offsets, state_dim, idle | ~followed, taken)
+        if shape is not None:  # the other velocities' filter over their own window, at this one's gain
+            weight[own, j] = shape * weight[offsets.index(sources[1][j] + 1) * state_dim + columns[j], j]
+            bias[j], taken[j] = (actions[:, j] - flat[:, own] @ weight[own, j]).mean(), "borrowed"
     report = {"fit": taken, "ridge_alpha": alphas, "own_error": own_errors, "all_error": all_error.tolist()}
     return weight, bias, report
+
+
+def borrowed_filter(
+    weight: np.ndarray,
+    copy: np.ndarray,
+    sources: tuple[list[int], list[int], list[str]],
+    offsets: list[int],
+    state_dim: int,
+    idle: np.ndarray,
+    taken: list[str],
+) -> np.ndarray | None:
+    """The median, over the moving differences fitted on their own window (``idle`` marks those left out: idle, or
+    not following their column at |correlation| ≥ ``RESEMBLANCE``), of their fitted weights over that window divided
+    by their copy's gain: the filter (a centred difference, say, for a velocity measured at t) that an idle
+    difference, whose own fit would be a fit to noise, borrows. None without such a difference."""
+    columns, lags, kinds = sources
+    shapes = []
+    for k, column in enumerate(columns):
+        if kinds[k] == DIFFERENCE and not idle[k] and taken[k] == "own":
+            own = np.arange(len(offsets)) * state_dim + column
+            gain = copy[offsets.index(lags[k] + 1) * state_dim + column, k]
+            if gain != 0.0:
+                shapes.append(weight[own, k] / gain)
+    if not shapes:
+        return None
+    shape = np.median(shapes, axis=0)
+    return shape - shape.mean()  # a filter of differences only: a pose never labelled cannot move the label
 
 
 class JointIDM(nn.Module):
