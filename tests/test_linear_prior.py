@@ -12,6 +12,8 @@ from lerobot_iupe.policy import IUPEConfig
 from lerobot_iupe.policy.idm_fit import fit_idm
 from lerobot_iupe.policy.linear_prior import LinearPrior, contiguous_folds
 from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
+from lerobot_iupe.relabel.labelling import labelling_pass
+from lerobot_iupe.relabel.references import linear_part_references
 
 
 def velocity_transitions(count: int, seed: int) -> Transitions:
@@ -71,3 +73,17 @@ def test_copies_count_once_and_folds_are_contiguous():
     alone.fit(alone.features(data.windows), data.actions, np.array([True, False]))
     torch.testing.assert_close(prior.weight, alone.weight)
     assert not prior.weight[:, 1].any() and prior.bias[1] == 0  # a dimension left out stays at 0
+
+
+def test_the_dry_run_scores_the_linear_part_alone_beside_the_idm():
+    policy = continuous_policy()
+    data, held_out = velocity_transitions(2000, 0), velocity_transitions(500, 1)
+    fit_idm(policy, torch.optim.Adam(policy.idm_parameters(), lr=1e-3), data, held_out, np.random.default_rng(0))
+    policy.eval()
+    window = torch.as_tensor(held_out.windows)
+    with torch.no_grad():
+        output = labelling_pass(policy, window)
+    assert output.shape == (len(window), 2 * 2 + 2)  # mean and log-std per dimension, then the linear part's labels
+    torch.testing.assert_close(output[:, 4:], policy.idm_prior(window))
+    references = linear_part_references(policy, output[:, 4:].numpy(), held_out.actions, np.arange(len(window)))
+    assert references["ridge"][0] > 0.98 and references["lag"] == [None, None]

@@ -43,11 +43,13 @@ def span_outputs(policy: IUPEPolicy, reader: FrameReader, span: LabelSpan, parts
 
 
 def labelling_pass(policy: IUPEPolicy, window: torch.Tensor) -> torch.Tensor:
-    """The IDM's outputs of one pass; with camera dimensions, their thumbnail ridge's predictions ride along after
-    them (the dry run's reference, ``assemble_labels``), from the frames already decoded."""
+    """The IDM's outputs of one pass; after them ride the dry run's references (``assemble_references``), from the
+    frames already decoded: the camera dimensions' thumbnail ridge, or the linear part of an IDM that has one."""
     output = policy.labelling_output(window)
     if policy.config.camera_dims:
         output = torch.cat([output, policy.camera_reference(window).to(output.dtype)], dim=-1)
+    elif policy.idm_prior is not None and bool(policy.idm_prior.fitted):  # the IDM's ridge alone
+        output = torch.cat([output, policy.idm_prior(window).to(output.dtype)], dim=-1)
     return output.float().cpu()
 
 

@@ -110,3 +110,17 @@ def thumbnail_references(policy, thumbnails: np.ndarray | None, actions: np.ndar
     for column, dim in enumerate(policy.config.camera_dims):
         scores[dim] = r_squared(thumbnails[rows, column], actions[rows, dim])
     return scores
+
+
+def linear_part_references(policy, linear: np.ndarray, actions: np.ndarray, rows: np.ndarray) -> dict:
+    """The references of an IDM with a linear part (``--policy.idm_linear_part``): that ridge alone, fitted on the
+    IDM's labelled frames and window, R² on ``rows`` per dimension (NaN on a binary one, which has none); no copies."""
+    count = policy.config.action_dim
+    actions = actions.reshape(len(actions), -1)
+    ridge = per_dimension_r2(linear[rows], actions[rows])
+    binary = policy.idm_head.binary.cpu().numpy()
+    return {
+        "ridge": [float("nan") if binary[d] else ridge[d] for d in range(count)],
+        "copy": [float("nan")] * count, "copy_lag": [-1] * count, "lag": [None] * count,
+        "source": ["window (network on its linear part)"] * count,
+    }  # fmt: skip

@@ -44,7 +44,12 @@ from lerobot_iupe.relabel.labelling import (
     last_frame_mask,
     process_group,
 )
-from lerobot_iupe.relabel.references import joint_references, per_dimension_r2, thumbnail_references
+from lerobot_iupe.relabel.references import (
+    joint_references,
+    linear_part_references,
+    per_dimension_r2,
+    thumbnail_references,
+)
 from lerobot_iupe.relabel.writing import action_feature, copy_dataset, pull_dataset, write_labels
 
 
@@ -118,6 +123,8 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
                 references = joint_references(policy, states, existing, bounds, np.flatnonzero(inner), state_names)
                 thumbnails = assemble_references(per_episode, bounds)
                 references["thumbnails"] = thumbnail_references(policy, thumbnails, existing, np.flatnonzero(inner))
+            elif (linear := assemble_references(per_episode, bounds)) is not None:
+                references = linear_part_references(policy, linear, existing, np.flatnonzero(inner))
         else:
             agreement = float((existing.reshape(total)[inner] == labels[inner]).mean())
     if config.is_continuous:
