@@ -30,6 +30,8 @@ from lerobot_iupe.policy.joint_idm import GATE_SHARE, gate_weights
 from lerobot_iupe.policy.train_run import training_episodes
 
 log = logging.getLogger("lerobot_iupe")
+# Rows whose camera frames are read at once (thumbnails, the gate's camera network): bounded memory at any dataset size.
+REFERENCE_CHUNK = 64
 
 
 def labelled_rows(episodes: np.ndarray) -> np.ndarray:
@@ -136,9 +138,8 @@ class JointFit:
         """The camera dimensions' thumbnail ridge, on (at most ``MAX_REFERENCE_ROWS`` of) the labelled rows."""
         rows = reference_rows(rows)
         reference = self.policy.idm_camera.reference
-        thumbnails = np.concatenate(
-            [reference.thumbnails(self.camera(rows[i : i + 512])).cpu().numpy() for i in range(0, len(rows), 512)]
-        )
+        chunks = [rows[i : i + REFERENCE_CHUNK] for i in range(0, len(rows), REFERENCE_CHUNK)]
+        thumbnails = np.concatenate([reference.thumbnails(self.camera(chunk)).cpu().numpy() for chunk in chunks])
         dims = self.policy.config.camera_dims
         actions = self.expert.actions[torch.as_tensor(rows, device=self.expert.actions.device)][:, dims]
         reference.fit(thumbnails, actions.cpu().numpy(), self.expert.episodes[rows])
@@ -157,8 +158,12 @@ class JointFit:
         was_training = policy.training
         policy.eval()
         window = self.windows(self.gate_rows)
-        camera = self.camera(self.gate_rows)
-        output = policy.joint_idm_output(window, gated=False, camera=camera)[:, : policy.config.action_dim]
+        # In chunks: a camera dimension's network on every gate row's frames at once held gigabytes at 640×480.
+        step = REFERENCE_CHUNK if policy.config.camera_dims else len(self.gate_rows)
+        output = torch.cat([
+            policy.joint_idm_output(window[i : i + step], gated=False, camera=self.camera(self.gate_rows[i : i + step]))
+            for i in range(0, len(self.gate_rows), step)
+        ])[:, : policy.config.action_dim]  # fmt: skip
         prior = policy.idm_head._scale(encoder.prior(window.float()))
         actions = self.expert.actions[torch.as_tensor(self.gate_rows, device=self.expert.actions.device)]
         target = policy.idm_head._scale(actions)
