@@ -78,8 +78,8 @@ class IUPEConfig(ObservationPolicyConfig):
     idm_source_kinds: list[str] | None = None
     # A linear part under any other continuous IDM (policy/linear_prior.py): a ridge from the window's vector values,
     # the network learning what it leaves. None = on when supervised (fitted on the frames it labels), off in the
-    # cycle: fitted on play, it moved Meta-World's first IDM both ways (benchmarks/cycle_play.md). Resolved when
-    # training starts (a checkpoint saved before this option existed reads as off).
+    # cycle: fitted on play, it moved Meta-World's first IDM both ways (benchmarks/cycle_linear_part.md). Resolved
+    # when training starts (a checkpoint saved before this option existed reads as off, fine-tuned too).
     idm_linear_part: bool | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
@@ -268,8 +268,8 @@ class IUPEConfig(ObservationPolicyConfig):
         if dataset_meta is not None:
             if self.idm_context is None:
                 self.idm_context = SUPERVISED_IDM_CONTEXT if self.supervised else 0
-            if self.idm_linear_part is None:
-                self.idm_linear_part = self.supervised
+            if self.idm_linear_part is None:  # a checkpoint from before it (--policy.path) keeps its network alone
+                self.idm_linear_part = self.supervised and self.pretrained_path is None
             if self.supervised and ACTION not in dataset_meta.features:
                 raise ValueError(
                     f"--policy.supervised=true needs a dataset with actions; {dataset_meta.root} has none "

@@ -97,7 +97,7 @@ def fit_on_expert(prior: LinearPrior, expert: ExpertFrames, offsets: list[int], 
 def judge_gate(policy: nn.Module, held_out: Transitions) -> None:
     """Per dimension, the share of the network's correction that helps on ``held_out`` transitions it did not train
     on (``gate_weights``); a binary dimension keeps all of it. On Meta-World the network, fitted to play, moved the
-    expert's labels away from the linear part's (reach, drawer-open: benchmarks/cycle_play.md)."""
+    expert's labels away from the linear part's (reach, drawer-open: benchmarks/cycle_linear_part.md)."""
     prior, head, dims = policy.idm_prior, policy.idm_head, policy.config.action_dim
     prior.gate.fill_(1.0)
     if not len(held_out):
