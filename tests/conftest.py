@@ -4,9 +4,11 @@ import json
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 import traceback
 from collections.abc import Callable
 from importlib.metadata import entry_points
@@ -221,3 +223,23 @@ def evaluate(checkpoint, output, *env_args: str, episodes: int) -> dict:
         check=True,
     )
     return json.loads((output / "eval_info.json").read_text())["overall"]
+
+
+def process_gone(pid: int) -> bool:
+    """No such process, or one that has exited and waits to be reaped (a zombie holds no memory)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return True
+    return state in ("Z", "X")
+
+
+def still_alive_after(pids: list[int], seconds: float) -> list[int]:
+    """Those of ``pids`` still running ``seconds`` from now (killed then, so that a failing test leaves no orphan)."""
+    deadline = time.monotonic() + seconds
+    while not all(process_gone(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    alive = [pid for pid in pids if not process_gone(pid)]
+    for pid in alive:
+        os.kill(pid, signal.SIGKILL)
+    return alive

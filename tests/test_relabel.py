@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import BIN, CHECKPOINT, collect, run_cli, run_in_process, train_args
+from conftest import BIN, CHECKPOINT, collect, run_cli, run_in_process, still_alive_after, train_args
 from hub_server import LocalHub
 from lerobot.datasets import LeRobotDataset
 from lerobot.datasets.dataset_tools import remove_feature
@@ -322,3 +322,31 @@ def test_one_writer_per_dataset_a_second_relabel_or_collect_stops_at_once(cartpo
         first.communicate("go\n", timeout=300)
     assert first.returncode == 0
     assert "relabelled_by" in read_iupe_meta(root) and hidden_siblings(root) == []  # the first writer finished
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_kill_9_of_a_relabel_takes_its_worker_processes_with_it(cartpole_run, cartpole_random, tmp_path):
+    """The real command with two workers, killed with SIGKILL while its workers decode and label 400 episodes: ten
+    seconds later no worker is left (they block on a full queue that nobody reads, so they would sleep forever)."""
+    pids = tmp_path / "workers.json"
+    args = relabel_args(cartpole_run / CHECKPOINT, cartpole_random, "--dry_run=true", "--num_workers=2")
+    code = f"""
+import json, os, signal, sys
+from lerobot_iupe.relabel import labelling
+
+def killed(queue, processes):
+    open({str(pids)!r}, "w").write(json.dumps([p.pid for p in processes]))
+    os.kill(os.getpid(), signal.SIGKILL)
+
+labelling._next_decoded = killed
+from lerobot_iupe.cli.relabel import main
+sys.argv[1:] = sys.argv[2:]
+main()
+"""
+    log = tmp_path / "relabel.log"  # a file, not a pipe: an orphaned worker would hold a pipe open
+    with open(log, "w") as output:
+        process = subprocess.run([sys.executable, "-c", code, "relabel", *args], stdout=output, stderr=output)
+    assert process.returncode == -signal.SIGKILL, log.read_text()[-3000:]
+    workers = json.loads(pids.read_text())
+    assert len(workers) == 2
+    assert still_alive_after(workers, seconds=10) == []

@@ -22,7 +22,9 @@ import numpy as np
 from lerobot.utils.constants import HF_LEROBOT_HOME
 from tqdm.auto import tqdm
 
+from lerobot_iupe.data.child_processes import exit_with_parent
 from lerobot_iupe.data.episodes import EpisodeFrames, open_dataset
+from lerobot_iupe.data.storage import pid_alive
 
 log = logging.getLogger("lerobot_iupe")
 
@@ -57,6 +59,14 @@ def cache_key(meta, key: str, shape: tuple[int, int] | None, backend: str) -> st
     return hashlib.sha256(json.dumps(described, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
+def remove_dead_partials(directory: Path) -> None:
+    """Delete the half-written cache files of builds whose process is gone (killed: nothing ever reads them)."""
+    for path in directory.glob(".*.partial-*.npy"):
+        pid = path.name.rsplit(".partial-", 1)[1].removesuffix(".npy")
+        if pid.isdigit() and not pid_alive(int(pid)):
+            path.unlink(missing_ok=True)
+
+
 _readers: dict = {}  # a worker process's open dataset, by (root, key, shape, backend)
 
 
@@ -84,6 +94,7 @@ def cached_frames(
     if path.exists():
         return np.load(path, mmap_mode="r")
     directory.mkdir(parents=True, exist_ok=True)
+    remove_dead_partials(directory)
     bounds = [
         (int(a), int(b))
         for a, b in zip(meta.episodes["dataset_from_index"], meta.episodes["dataset_to_index"], strict=True)
@@ -103,7 +114,9 @@ def cached_frames(
                 results = ((e, reader.episode(key, e)) for e in range(len(bounds)))
                 pool = None
             else:  # spawn: the caller may hold torch's thread pools, which a fork would copy half-alive
-                pool = multiprocessing.get_context("spawn").Pool(min(workers, len(tasks)))
+                pool = multiprocessing.get_context("spawn").Pool(
+                    min(workers, len(tasks)), initializer=exit_with_parent, initargs=(os.getpid(),)
+                )
                 results = pool.imap_unordered(_episode_frames, tasks)
             try:
                 for episode, episode_frames in results:

@@ -17,6 +17,7 @@ import torch.distributed as dist
 from lerobot.datasets import LeRobotDatasetMetadata
 from tqdm.auto import tqdm
 
+from lerobot_iupe.data.child_processes import exit_with_parent
 from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, window_indices
 from lerobot_iupe.policy import IUPEPolicy
 
@@ -53,9 +54,10 @@ def labelling_pass(policy: IUPEPolicy, window: torch.Tensor) -> torch.Tensor:
     return output.float().cpu()
 
 
-def _work(policy, reader: FrameReader, spans: dict, tasks, out, device: str | None) -> None:
+def _work(policy, reader: FrameReader, spans: dict, tasks, out, device: str | None, parent_pid: int) -> None:
     """A worker process: episodes from ``tasks`` until None, each span's IDM outputs into ``out`` in the episode's
-    order (``device`` None: its decoded frames, for the first process's IDM), then None."""
+    order (``device`` None: its decoded frames, for the first process's IDM), then None. It dies with its parent."""
+    exit_with_parent(parent_pid)
     # One thread: the first process's, when these workers label (the same sums, the same labels); a forked child
     # must not start a thread pool (torch's DataLoader workers do the same).
     torch.set_num_threads(1)
@@ -100,7 +102,7 @@ def outputs_in_workers(
     if label_in_workers is None:  # a labeller of several threads stays here: a forked child must not start a pool
         label_in_workers = device == "cpu" and torch.get_num_threads() == 1
     label_here = not label_in_workers
-    args = (policy, reader, by_episode, tasks, out, None if label_here else device)
+    args = (policy, reader, by_episode, tasks, out, None if label_here else device, os.getpid())
     processes = [context.Process(target=_work, args=args, daemon=True) for _ in range(workers)]
     # Frozen objects are never collected: a child's garbage collector would otherwise free decoders the parent had
     # dropped, and freeing an AV1 decoder without its threads hangs.
