@@ -163,3 +163,30 @@ def test_the_idm_reads_only_its_keys():
     blank[:, : 2 * 3 * 8 * 8] = 0.0  # both cameras
     torch.testing.assert_close(policy.idm_output(observation, observation), policy.idm_output(blank, blank))
     assert not torch.allclose(policy.pm_history_output(observation[:, None]), policy.pm_history_output(blank[:, None]))
+
+
+@pytest.mark.parametrize("context", [0, 2])
+def test_the_fused_idm_reads_each_keys_frame_and_its_differences_as_the_general_path_packs_them(context):
+    """The fused IDM cuts its input per key while it takes the differences (``_fused_difference_parts``); what it
+    reads must be what the general path builds: [s_t, s_j − s_t …] of the normalised frames, packed flat."""
+    policy = fused_policy(idm_context=context, joint_state_columns=[]).eval()
+    assert not policy.config.joint_idm
+    for module in policy.modules():
+        if hasattr(module, "gamma"):
+            module.gamma.data.fill_(0.5)
+    policy.state_mean.copy_(torch.arange(policy.layout.size, dtype=torch.float32) * 0.01)
+    policy.state_std.copy_(1.0 + torch.arange(policy.layout.size, dtype=torch.float32) * 0.02)
+    policy.state_mean[: 2 * 3 * 8 * 8], policy.state_std[: 2 * 3 * 8 * 8] = 0.0, 1.0  # cameras are not normalised
+    generator = torch.Generator().manual_seed(2)
+    frames = 2 * context + 2
+    window = torch.rand(5, frames, policy.layout.size, generator=generator)
+    window[..., -2:] = torch.randn(5, frames, 2, generator=generator) * 3
+    prepared = policy._prepare(window)
+    now = prepared[:, context : context + 1]
+    others = torch.cat([prepared[:, :context], prepared[:, context + 1 :]], dim=1)
+    packed = torch.cat([now, others - now], dim=1).flatten(1, 2)
+    expected = policy.idm_head(policy.idm_encoder(packed))
+    torch.testing.assert_close(policy.idm_window_output(window), expected)
+    moved = window.clone()
+    moved[:, context, -1] += 1.0  # the state at t reaches the output
+    assert not torch.allclose(policy.idm_window_output(moved), expected)

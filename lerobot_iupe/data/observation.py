@@ -64,8 +64,17 @@ class ObservationLayout:
             return parts[0]
         if not self.fused:
             return torch.cat(parts, dim=1) if torch.is_tensor(parts[0]) else np.concatenate(parts, axis=1)
+        if torch.is_tensor(parts[0]):  # written in place, converted as they are copied: one pass over each frame
+            out = torch.empty(len(parts[0]), self.size, dtype=torch.float32, device=parts[0].device)
+            for i, (part, visual) in enumerate(zip(parts, self.visual, strict=True)):
+                part = part.reshape(len(part), -1)
+                if visual and part.dtype == torch.uint8:
+                    torch.div(part, 255.0, out=out[:, self.columns(i)])
+                else:
+                    out[:, self.columns(i)] = part
+            return out
         flat = [_as_float(part, visual).reshape(len(part), -1) for part, visual in zip(parts, self.visual, strict=True)]
-        return torch.cat(flat, dim=1) if torch.is_tensor(flat[0]) else np.concatenate(flat, axis=1)
+        return np.concatenate(flat, axis=1)
 
 
 def _as_float(part, visual: bool):

@@ -154,7 +154,7 @@ class IUPEPolicy(PreTrainedPolicy):
             state = window if columns is None else window[:, :, columns]
             return self.joint_idm_output(state, camera=self.camera_frames(window) if self.config.camera_dims else None)
         if self.layout.fused and self.idm_columns is None:
-            output = self.idm_head(self.idm_encoder(self._fused_differences(window, k).flatten(1, 2)))
+            output = self.idm_head(self.idm_encoder.encode_parts(*self._fused_difference_parts(window, k)))
             return self.with_prior(output, window)
         frames = self._prepare(window)
         if self.idm_columns is not None:  # --policy.idm_observation_keys: the IDM reads some keys only
@@ -226,18 +226,33 @@ class IUPEPolicy(PreTrainedPolicy):
             gate = encoder.gate
         return torch.cat([head._scale(encoder.prior(window)) + gate * correction, log_std], dim=-1)
 
-    def _fused_differences(self, window: Tensor, k: int) -> Tensor:
-        """[s_t, s_j - s_t …] (B, F, size) of fused frames, written once into one tensor: the same values as the
-        general path (a difference's vector part is divided by the std; the means cancel), without its four passes
-        over the frames, which took over 40% of an image IDM's forward pass at 96×128."""
+    def _fused_difference_parts(self, window: Tensor, k: int) -> tuple[list[Tensor], Tensor | None]:
+        """[s_t, s_j - s_t …] of fused frames (B, F, size), written once per key straight into what
+        ``FusedEncoder.encode_parts`` reads: each camera (B, F · C, H, W), the vectors (B, F · D) (a difference's
+        vector part divided by the std; the means cancel). The same values as the general path without its passes
+        over whole frames (packing, cutting and copying took 40% of an image IDM's labelling at 96×128)."""
         window = window.float()
-        out = torch.empty_like(window)
-        out[:, 0] = self._prepare(window[:, k])
-        torch.sub(window[:, :k], window[:, k : k + 1], out=out[:, 1 : k + 1])
-        torch.sub(window[:, k + 1 :], window[:, k : k + 1], out=out[:, k + 1 :])
+        b, frames = window.shape[:2]
+        layout, encoder = self.layout, self.idm_encoder
+
+        def differences(values: Tensor) -> Tensor:
+            out = torch.empty(b, frames, values.shape[-1], dtype=values.dtype, device=values.device)
+            out[:, 0] = values[:, k]
+            torch.sub(values[:, :k], values[:, k : k + 1], out=out[:, 1 : k + 1])
+            torch.sub(values[:, k + 1 :], values[:, k : k + 1], out=out[:, k + 1 :])
+            return out
+
+        cameras = []
+        for i in encoder.cameras:
+            c, h, w = layout.shapes[i]
+            cameras.append(differences(window[:, :, layout.columns(i)]).view(b, frames * c, h, w))
+        if encoder.vector_encoder is None:
+            return cameras, None
         columns = self.vector_columns.to(window.device)
-        out[:, 1:, columns] /= self.state_std[columns]
-        return out
+        vectors = differences(window[:, :, columns])
+        vectors[:, 0] = (vectors[:, 0] - self.state_mean[columns]) / self.state_std[columns]
+        vectors[:, 1:] /= self.state_std[columns]
+        return cameras, vectors.flatten(1)
 
     def pm_output(self, state: Tensor) -> Tensor:
         """The policy head's distribution parameters (logits) for a → s_t (a policy of the current state only)."""

@@ -119,6 +119,8 @@ class ImageEncoder(nn.Module):
         self.head = nn.Sequential(nn.Linear(2 * width * 16, hidden), nn.ReLU())
 
     def forward(self, x: Tensor) -> Tensor:
+        if not x.is_cuda:  # oneDNN's convolutions run channels-last: 1.1x the forward pass, 1.4x with backward
+            x = x.contiguous(memory_format=torch.channels_last)
         x = self.attention1(self.stage1(self.stem(x)))
         x = self.stage3(self.attention2(self.stage2(x)))
         return self.head(self.pool(x).flatten(1))
@@ -186,13 +188,20 @@ class FusedEncoder(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         x = x.reshape(len(x), self.frames, self.layout.size)
-        features = []
-        for n, i in enumerate(self.cameras):
+        cameras = []
+        for i in self.cameras:
             c, h, w = self.layout.shapes[i]
-            images = x[:, :, self.layout.columns(i)].reshape(len(x), self.frames * c, h, w)
-            features.append(self.camera_encoders[min(n, len(self.camera_encoders) - 1)](images))
+            cameras.append(x[:, :, self.layout.columns(i)].reshape(len(x), self.frames * c, h, w))
+        vectors = x[:, :, self.vector_columns].flatten(1) if self.vector_encoder is not None else None
+        return self.encode_parts(cameras, vectors)
+
+    def encode_parts(self, cameras: list[Tensor], vectors: Tensor | None) -> Tensor:
+        """Features of the input already cut: each camera's frames as channels (B, frames · C, H, W), in layout
+        order, and the vectors (B, frames · D) (None without vector keys)."""
+        features = [self.camera_encoders[min(n, len(self.camera_encoders) - 1)](images)
+                    for n, images in enumerate(cameras)]  # fmt: skip
         if self.vector_encoder is not None:
-            features.append(self.vector_encoder(x[:, :, self.vector_columns].flatten(1)))
+            features.append(self.vector_encoder(vectors))
         return self.mix(torch.cat(features, dim=1))
 
 
