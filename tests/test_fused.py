@@ -190,3 +190,31 @@ def test_the_fused_idm_reads_each_keys_frame_and_its_differences_as_the_general_
     moved = window.clone()
     moved[:, context, -1] += 1.0  # the state at t reaches the output
     assert not torch.allclose(policy.idm_window_output(moved), expected)
+
+
+def test_a_supervised_linear_part_reads_camera_windows_a_bounded_chunk_at_a_time(tmp_path, monkeypatch):
+    """Windows of joined frames carry every camera value (4,096 of two 96×128 cameras were 4.8 GB at once): the
+    linear part is fitted from chunks of at most ``CHUNK_VALUES`` values, and fits the same as from one chunk."""
+    from lerobot_iupe.data.readers import ExpertFrames
+    from lerobot_iupe.policy import linear_prior
+    from lerobot_iupe.policy.linear_prior import LinearPrior, fit_on_expert
+
+    root = tmp_path / "three-views"
+    write_three_views(root, episodes=3, seed=4, with_actions=True)
+    dataset = LeRobotDataset(f"local/{root.name}", root=root)
+    expert = ExpertFrames(dataset, [TOP, SIDE, OBS_STATE], True, torch.device("cpu"))
+    offsets, vector_columns = [0, 1], [2 * SIZE * SIZE * 3, 2 * SIZE * SIZE * 3 + 1]
+    per_window = len(offsets) * (2 * SIZE * SIZE * 3 + 2)
+    read, windows = [], expert.windows
+    expert.windows = lambda rows, at: read.append(len(rows)) or windows(rows, at)  # the real reader, counted
+
+    whole = LinearPrior(len(offsets), vector_columns, 3)
+    fit_on_expert(whole, expert, offsets, np.ones(3, dtype=bool))
+    monkeypatch.setattr(linear_prior, "CHUNK_VALUES", 10 * per_window)
+    read.clear()
+    chunked = LinearPrior(len(offsets), vector_columns, 3)
+    fit_on_expert(chunked, expert, offsets, np.ones(3, dtype=bool))
+    assert max(read) == 10 and sum(read[1:]) == len(expert.episodes)  # the first read sizes one window
+    assert bool(chunked.fitted)
+    torch.testing.assert_close(chunked.weight, whole.weight)
+    torch.testing.assert_close(chunked.bias, whole.bias)

@@ -22,6 +22,9 @@ from lerobot_iupe.policy.joint_idm import MAX_FOLDS, RIDGE_ALPHAS, fit_ridge, ga
 SHIFT_STRENGTH = 1e-3
 
 
+CHUNK_VALUES = 2**25  # values (128 MB of float32) of the windows read at once when fitting on an expert
+
+
 def contiguous_folds(count: int) -> np.ndarray:
     """A fold number per row: ``MAX_FOLDS`` contiguous blocks of rows in their order (an episode's neighbouring
     frames, nearly equal, stay in one fold)."""
@@ -86,8 +89,12 @@ def fit_on_expert(prior: LinearPrior, expert: ExpertFrames, offsets: list[int], 
     """A supervised IDM's linear part, on this run's labelled frames (read in chunks: only the vector values are
     kept, not the camera frames)."""
     rows = labelled_rows(expert.episodes)
+    if not len(rows):
+        return
+    # Windows of joined frames carry every camera value: 4,096 windows of two 96×128 cameras were 4.8 GB at once.
+    chunk = max(1, min(65_536, CHUNK_VALUES // expert.windows(rows[:1], offsets).numel()))
     chunks = [
-        prior.features(expert.windows(rows[i : i + 4096], offsets)).cpu().numpy() for i in range(0, len(rows), 4096)
+        prior.features(expert.windows(rows[i : i + chunk], offsets)).cpu().numpy() for i in range(0, len(rows), chunk)
     ]
     actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
     prior.fit(np.concatenate(chunks), actions, keep)

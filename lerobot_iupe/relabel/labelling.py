@@ -33,28 +33,34 @@ def available_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def span_outputs(policy: IUPEPolicy, reader: FrameReader, span: LabelSpan, parts: list, device: str) -> torch.Tensor:
-    """The IDM's outputs (float32, on the CPU) for the frames of ``span``, whose decoded keys are ``parts``."""
+def span_outputs(
+    policy: IUPEPolicy, reader: FrameReader, span: LabelSpan, parts: list, device: str, references: bool = True
+) -> torch.Tensor:
+    """The IDM's outputs (float32, on the CPU) for the frames of ``span``, whose decoded keys are ``parts``, with
+    the references after them when ``references`` (``labelling_pass``)."""
     frames = reader.layout.join(parts)
     t = np.arange(span.start, span.stop)
     index = window_indices(t, policy.config.idm_window, np.full(len(t), span.first), np.full(len(t), span.last))
     frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
     passes = torch.as_tensor(index - span.lo, device=device).split(IDM_BATCH)
-    return torch.cat([labelling_pass(policy, frames[part]) for part in passes])
+    return torch.cat([labelling_pass(policy, frames[part], references) for part in passes])
 
 
-def labelling_pass(policy: IUPEPolicy, window: torch.Tensor) -> torch.Tensor:
-    """The IDM's outputs of one pass; after them ride the dry run's references (``assemble_references``), from the
-    frames already decoded: the camera dimensions' thumbnail ridge, or the linear part of an IDM that has one."""
+def labelling_pass(policy: IUPEPolicy, window: torch.Tensor, references: bool = True) -> torch.Tensor:
+    """The IDM's outputs of one pass; after them ride, when ``references`` (a dataset with actions to compare
+    them with), the report's references (``assemble_references``), from the frames already decoded: the camera
+    dimensions' thumbnail ridge, or the linear part of an IDM that has one."""
     output = policy.labelling_output(window)
-    if policy.config.camera_dims:
+    if references and policy.config.camera_dims:
         output = torch.cat([output, policy.camera_reference(window).to(output.dtype)], dim=-1)
-    elif policy.idm_prior is not None and bool(policy.idm_prior.fitted):  # the IDM's ridge alone
+    elif references and policy.idm_prior is not None and bool(policy.idm_prior.fitted):  # the IDM's ridge alone
         output = torch.cat([output, policy.idm_prior(window).to(output.dtype)], dim=-1)
     return output.float().cpu()
 
 
-def _work(policy, reader: FrameReader, spans: dict, tasks, out, device: str | None, parent_pid: int) -> None:
+def _work(
+    policy, reader: FrameReader, spans: dict, tasks, out, device: str | None, parent_pid: int, references: bool
+) -> None:
     """A worker process: episodes from ``tasks`` until None, each span's IDM outputs into ``out`` in the episode's
     order (``device`` None: its decoded frames, for the first process's IDM), then None. It dies with its parent."""
     exit_with_parent(parent_pid)
@@ -69,7 +75,7 @@ def _work(policy, reader: FrameReader, spans: dict, tasks, out, device: str | No
                 if device is None:
                     out.put((span, [p.numpy() for p in parts]))
                 else:
-                    out.put((span, span_outputs(policy, reader, span, parts, device).numpy()))
+                    out.put((span, span_outputs(policy, reader, span, parts, device, references).numpy()))
         out.put(None)
     except BaseException:
         out.put(traceback.format_exc())
@@ -82,6 +88,7 @@ def outputs_in_workers(
     workers: int,
     device: str,
     label_in_workers: bool | None = None,
+    references: bool = True,
 ):
     """(span, IDM outputs) for every span, each episode's spans in order, episodes in the order they finish.
     ``workers`` processes take whole episodes from a queue and decode them; on the CPU they also run the IDM
@@ -102,7 +109,7 @@ def outputs_in_workers(
     if label_in_workers is None:  # a labeller of several threads stays here: a forked child must not start a pool
         label_in_workers = device == "cpu" and torch.get_num_threads() == 1
     label_here = not label_in_workers
-    args = (policy, reader, by_episode, tasks, out, None if label_here else device, os.getpid())
+    args = (policy, reader, by_episode, tasks, out, None if label_here else device, os.getpid(), references)
     processes = [context.Process(target=_work, args=args, daemon=True) for _ in range(workers)]
     # Frozen objects are never collected: a child's garbage collector would otherwise free decoders the parent had
     # dropped, and freeing an AV1 decoder without its threads hangs.
@@ -123,7 +130,8 @@ def outputs_in_workers(
             else:
                 span, result = item
                 if label_here:
-                    result = span_outputs(policy, reader, span, [torch.from_numpy(p) for p in result], device)
+                    parts = [torch.from_numpy(p) for p in result]
+                    result = span_outputs(policy, reader, span, parts, device, references)
                     yield span, result
                 else:
                     yield span, torch.from_numpy(result)
@@ -133,10 +141,13 @@ def outputs_in_workers(
             process.join()
 
 
-def outputs_in_process(policy: IUPEPolicy, reader: FrameReader, spans: list[LabelSpan], device: str):
+def outputs_in_process(
+    policy: IUPEPolicy, reader: FrameReader, spans: list[LabelSpan], device: str, references: bool = True
+):
     """(span, IDM outputs) for every span in order, decoded and labelled in this process (``--num_workers=0``)."""
     for span in spans:
-        yield span, span_outputs(policy, reader, span, reader.parts(span.episode, span.lo, span.hi), device)
+        parts = reader.parts(span.episode, span.lo, span.hi)
+        yield span, span_outputs(policy, reader, span, parts, device, references)
 
 
 def _next_decoded(queue, processes: list):
@@ -168,12 +179,14 @@ def label_spans_with_idm(
     device: str = "cpu",
     progress: bool = True,
     workers: int = 0,
+    references: bool = True,
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Labels (int64 ids, or float32 vectors) and confidences (the IDM's probability of its label, or its std per
     dimension in units of the action range) of the frames of ``spans``, by episode; each
     episode's last frame follows ``LAST_FRAME_RULE``. Decoded (and on the CPU labelled) by ``workers`` processes
     (``outputs_in_workers``), or in this one (0); the labels are the same either way: an episode's spans are
-    labelled in order, with the episode's own draws."""
+    labelled in order, with the episode's own draws. ``references``: the report's references ride along (third
+    item), for a dataset whose actions they are compared with."""
     # Labels are chosen on the CPU from the IDM's outputs, whatever device it runs on: the episode's generator is a
     # CPU one, and a CUDA IDM then labels as the CPU one does.
     config, head = policy.config, copy.deepcopy(policy.idm_head).cpu()
@@ -181,9 +194,9 @@ def label_spans_with_idm(
     results: dict[int, tuple[list, list, list]] = {}
     generators: dict[int, torch.Generator] = {}
     if workers:
-        outputs = outputs_in_workers(policy, reader, spans, workers, device)
+        outputs = outputs_in_workers(policy, reader, spans, workers, device, references=references)
     else:
-        outputs = outputs_in_process(policy, reader, spans, device)
+        outputs = outputs_in_process(policy, reader, spans, device, references)
 
     total = sum(span.stop - span.start for span in spans)
     with tqdm(total=total, desc="relabel", unit="frame", unit_scale=True, disable=not progress) as bar:

@@ -92,7 +92,10 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
     spans = label_spans(bounds, cfg.batch_size, config.idm_window, list(range(rank, len(bounds), world)))
     reader = FrameReader(dataset, keys, config.layout_of(keys), backend)
     workers = max(1, available_cores() // world) if cfg.num_workers is None else cfg.num_workers
-    per_episode = label_spans_with_idm(policy, reader, spans, cfg.mode, cfg.seed, device, rank == 0, workers)
+    compared = ACTION in meta.features  # the references are only compared with a dataset's own actions
+    per_episode = label_spans_with_idm(
+        policy, reader, spans, cfg.mode, cfg.seed, device, rank == 0, workers, references=compared
+    )
     per_episode = gather_on_first(per_episode, world)
     if world > 1:  # no collective after this; a group left alive aborts the process at exit (gloo's threads)
         dist.destroy_process_group()
