@@ -177,7 +177,13 @@ def main() -> None:
     if "train" in args.only:
         rows = []
         for idm, extra in (("camera IDM", ["--policy.joint_state_columns=[]"]), ("arm IDM (default)", [])):
-            row = {"idm": idm, "frames": args.frames, "steps": args.steps, "machine": machine}
+            row = {
+                "idm": idm,
+                "frames": args.frames,
+                "steps": args.steps,
+                "machine": machine,
+                "baseline": args.baseline,
+            }
             for name, env in (("before", before), ("after", after)):
                 out = work / f"train-{name}-{'camera' if extra else 'arm'}-{args.frames}"
                 subprocess.run(["rm", "-rf", str(out)], check=True)
@@ -208,15 +214,16 @@ def main() -> None:
         checkpoint = work / f"train-after-camera-{args.frames}" / CHECKPOINT
         rows = []
         backend = f"--dataset.video_backend={args.backend}"
-        before_rate = relabel(checkpoint, root, before, backend)
         for workers in args.processes or sorted({1, cores}):
             plain = plain_decode_rate(root, args.backend, workers)
+            before_rate = relabel(checkpoint, root, before, backend, f"--num_workers={workers}")
             measured = relabel(checkpoint, root, after, backend, f"--num_workers={workers}")
             rows.append({
                 "frames": args.frames, "backend": args.backend, "processes": workers, "machine": machine,
                 "relabel_frames_per_s": measured["frames_per_s"], "peak_rss_gb": measured["peak_rss_gb"],
                 "plain_decode_frames_per_s": plain, "ratio": measured["frames_per_s"] / plain,
                 "before_frames_per_s": before_rate["frames_per_s"], "before_peak_rss_gb": before_rate["peak_rss_gb"],
+                "baseline": args.baseline, "before_processes": workers,
             })  # fmt: skip
             print(rows[-1], flush=True)
         keep(results, "relabel", rows, command, ("frames", "processes"))
@@ -246,11 +253,12 @@ def render(results: dict, page: Path) -> None:
              ""]  # fmt: skip
     if "train" in results:
         lines += ["## Training (lerobot-train, default flags, batch 8)", "", commands_of(results, "train"), "",
-                  "| IDM | frames | steps | machine | before steps/s | after steps/s | speedup | before peak GB | "
-                  "after peak GB |", "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "| IDM | frames | steps | machine | before: revision | before steps/s | after steps/s | speedup | "
+                  "before peak GB | after peak GB |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["train"]:
             b, a = r["before"], r["after"]
-            lines.append(f"| {r['idm']} | {r['frames']:,} | {r['steps']} | {r['machine']} | {b['steps_per_s']:.1f} | "
+            lines.append(f"| {r['idm']} | {r['frames']:,} | {r['steps']} | {r['machine']} | "
+                         f"{r.get('baseline', 'd03e093')} | {b['steps_per_s']:.1f} | "
                          f"{a['steps_per_s']:.1f} | {r['speedup']:.2f}× | {b['peak_rss_gb']:.2f} | "
                          f"{a['peak_rss_gb']:.2f} |")  # fmt: skip
         lines.append("")
@@ -267,12 +275,13 @@ def render(results: dict, page: Path) -> None:
     if "relabel" in results:
         lines += ["## Relabelling with the camera IDM", "", commands_of(results, "relabel"), "",
                   "| frames | decoder | processes | machine | relabel frames/s | plain decode frames/s (same "
-                  "processes) | ratio | peak GB | before frames/s (one decoding process) | before peak GB |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "processes) | ratio | peak GB | before: revision, processes | before frames/s | before peak GB |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["relabel"]:
             lines.append(f"| {r['frames']:,} | {r['backend']} | {r['processes']} | {r['machine']} | "
                          f"{r['relabel_frames_per_s']:.0f} | {r['plain_decode_frames_per_s']:.0f} | "
-                         f"{r['ratio']:.2f} | {r['peak_rss_gb']:.2f} | {r['before_frames_per_s']:.0f} | "
+                         f"{r['ratio']:.2f} | {r['peak_rss_gb']:.2f} | {r.get('baseline', 'd03e093')}, "
+                         f"{r.get('before_processes', 1)} | {r['before_frames_per_s']:.0f} | "
                          f"{r['before_peak_rss_gb']:.2f} |")  # fmt: skip
         lines.append("")
     page.write_text("\n".join(lines))
