@@ -227,13 +227,11 @@ class IUPEPolicy(PreTrainedPolicy):
         return torch.cat([head._scale(encoder.prior(window)) + gate * correction, log_std], dim=-1)
 
     def _fused_difference_parts(self, window: Tensor, k: int) -> tuple[list[Tensor], Tensor | None]:
-        """[s_t, s_j - s_t …] of fused frames (B, F, size), written once per key straight into what
-        ``FusedEncoder.encode_parts`` reads: each camera (B, F · C, H, W), the vectors (B, F · D) (a difference's
-        vector part divided by the std; the means cancel). The same values as the general path without its passes
-        over whole frames (packing, cutting and copying took 40% of an image IDM's labelling at 96×128)."""
-        window = window.float()
+        """[s_t, s_j - s_t …] of fused frames (B, F, size), written once per key into what ``encode_parts`` reads:
+        cameras (B, F · C, H, W), vectors (B, F · D) (differences divided by the std; the means cancel). The general
+        path's values without its copies of whole frames (40% of an image IDM's labelling at 96×128)."""
+        window, layout, encoder = window.float(), self.layout, self.idm_encoder
         b, frames = window.shape[:2]
-        layout, encoder = self.layout, self.idm_encoder
 
         def differences(values: Tensor) -> Tensor:
             out = torch.empty(b, frames, values.shape[-1], dtype=values.dtype, device=values.device)
@@ -242,10 +240,8 @@ class IUPEPolicy(PreTrainedPolicy):
             torch.sub(values[:, k + 1 :], values[:, k : k + 1], out=out[:, k + 1 :])
             return out
 
-        cameras = []
-        for i in encoder.cameras:
-            c, h, w = layout.shapes[i]
-            cameras.append(differences(window[:, :, layout.columns(i)]).view(b, frames * c, h, w))
+        cameras = [differences(window[:, :, layout.columns(i)]).view(b, -1, *layout.shapes[i][1:])
+                   for i in encoder.cameras]  # fmt: skip
         if encoder.vector_encoder is None:
             return cameras, None
         columns = self.vector_columns.to(window.device)
