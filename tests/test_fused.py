@@ -192,29 +192,31 @@ def test_the_fused_idm_reads_each_keys_frame_and_its_differences_as_the_general_
     assert not torch.allclose(policy.idm_window_output(moved), expected)
 
 
-def test_a_supervised_linear_part_reads_camera_windows_a_bounded_chunk_at_a_time(tmp_path, monkeypatch):
+def test_a_supervised_linear_part_reads_the_vector_columns_without_a_camera_frame(tmp_path):
     """Windows of joined frames carry every camera value (4,096 of two 96×128 cameras were 4.8 GB at once): the
-    linear part is fitted from chunks of at most ``CHUNK_VALUES`` values, and fits the same as from one chunk."""
+    linear part is fitted from the vector columns alone, read without joining a frame, and fits as from the whole
+    windows."""
     from lerobot_iupe.data.readers import ExpertFrames
-    from lerobot_iupe.policy import linear_prior
+    from lerobot_iupe.policy.joint_fit import labelled_rows
     from lerobot_iupe.policy.linear_prior import LinearPrior, fit_on_expert
 
     root = tmp_path / "three-views"
     write_three_views(root, episodes=3, seed=4, with_actions=True)
     dataset = LeRobotDataset(f"local/{root.name}", root=root)
     expert = ExpertFrames(dataset, [TOP, SIDE, OBS_STATE], True, torch.device("cpu"))
-    offsets, vector_columns = [0, 1], [2 * SIZE * SIZE * 3, 2 * SIZE * SIZE * 3 + 1]
-    per_window = len(offsets) * (2 * SIZE * SIZE * 3 + 2)
-    read, windows = [], expert.windows
-    expert.windows = lambda rows, at: read.append(len(rows)) or windows(rows, at)  # the real reader, counted
+    offsets, vector_columns = [-1, 0, 1, 2], [2 * SIZE * SIZE * 3, 2 * SIZE * SIZE * 3 + 1]
+    rows = labelled_rows(expert.episodes)
+    joined = expert.windows(rows, offsets)
+    np.testing.assert_array_equal(expert.column_windows(rows, offsets, vector_columns), joined[:, :, vector_columns])
+    with pytest.raises(ValueError, match="camera"):
+        expert.column_windows(rows, offsets, [0])
 
+    joined_reads, windows = [], expert.windows
+    expert.windows = lambda *args: joined_reads.append(args) or windows(*args)  # the real reader, counted
+    prior = LinearPrior(len(offsets), vector_columns, 3)
+    fit_on_expert(prior, expert, offsets, np.ones(3, dtype=bool))
+    assert joined_reads == [] and bool(prior.fitted)
     whole = LinearPrior(len(offsets), vector_columns, 3)
-    fit_on_expert(whole, expert, offsets, np.ones(3, dtype=bool))
-    monkeypatch.setattr(linear_prior, "CHUNK_VALUES", 10 * per_window)
-    read.clear()
-    chunked = LinearPrior(len(offsets), vector_columns, 3)
-    fit_on_expert(chunked, expert, offsets, np.ones(3, dtype=bool))
-    assert max(read) == 10 and sum(read[1:]) == len(expert.episodes)  # the first read sizes one window
-    assert bool(chunked.fitted)
-    torch.testing.assert_close(chunked.weight, whole.weight)
-    torch.testing.assert_close(chunked.bias, whole.bias)
+    whole.fit(whole.features(joined.numpy()), expert.actions[rows].numpy(), np.ones(3, dtype=bool))
+    torch.testing.assert_close(prior.weight, whole.weight)
+    torch.testing.assert_close(prior.bias, whole.bias)

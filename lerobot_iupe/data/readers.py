@@ -122,6 +122,19 @@ class FrameTable:
     def __len__(self) -> int:
         return self.length
 
+    def vector_columns(self, rows: np.ndarray, columns: list[int]) -> np.ndarray:
+        """Columns of vector keys of the joined frames of ``rows`` (any shape), float32, shaped ``rows.shape +
+        (len(columns),)``, read without a camera frame."""
+        rows = np.asarray(rows, dtype=np.int64)
+        starts = np.cumsum([0, *self.layout.sizes])
+        out = np.empty((rows.size, len(columns)), dtype=np.float32)
+        for n, column in enumerate(columns):
+            part = int(np.searchsorted(starts, column, side="right")) - 1
+            if self.layout.visual[part]:
+                raise ValueError(f"column {column} of the joined frames is a camera's, not a vector key's")
+            out[:, n] = self.parts[part][rows.reshape(-1), column - starts[part]]
+        return out.reshape(*rows.shape, len(columns))
+
     def __getitem__(self, rows) -> Tensor:
         """The joined frames of ``rows`` (any shape of row numbers), shaped ``rows.shape + frame``."""
         rows = np.asarray(rows.cpu() if torch.is_tensor(rows) else rows, dtype=np.int64)
@@ -223,6 +236,12 @@ class ExpertFrames:
     def windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """Frames (B, len(offsets), …) at ``offsets`` around each row, clamped into its episode."""
         return self.states[window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])]
+
+    def column_windows(self, rows: np.ndarray, offsets: list[int], columns: list[int]) -> np.ndarray:
+        """Vector ``columns`` of the joined frames (B, len(offsets), len(columns)) at ``offsets`` around each row,
+        clamped into its episode, read without a camera frame."""
+        index = window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])
+        return self.states.vector_columns(index, columns)
 
     def vector_windows(self, key: str, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """One vector key's values (B, len(offsets), D) at ``offsets`` around each row, clamped into its episode."""
