@@ -77,7 +77,5 @@ class ObservationLayout:
         return np.concatenate(flat, axis=1)
 
 
-def _as_float(part, visual: bool):
-    if torch.is_tensor(part):
-        return part.float() / 255.0 if visual and part.dtype == torch.uint8 else part.float()
+def _as_float(part: np.ndarray, visual: bool) -> np.ndarray:
     return part.astype(np.float32) / 255.0 if visual and part.dtype == np.uint8 else part.astype(np.float32)
