@@ -87,3 +87,32 @@ def test_the_dry_run_scores_the_linear_part_alone_beside_the_idm():
     torch.testing.assert_close(output[:, 4:], policy.idm_prior(window))
     references = linear_part_references(policy, output[:, 4:].numpy(), held_out.actions, np.arange(len(window)))
     assert references["ridge"][0] > 0.98 and references["lag"] == [None, None]
+
+
+def test_the_first_idm_labels_by_its_linear_part_and_later_ones_judge_the_network_on_the_policys_own_rollouts():
+    """Fitted on play alone, the network's correction moved Meta-World's expert labels below the linear part's
+    (benchmarks/cycle_linear_part.md): with no rollout of the policy's own to judge it on, its share is 0."""
+
+    # A second dimension the linear part cannot read (the square of a step), which the network learns.
+    def squared(transitions: Transitions) -> Transitions:
+        step = transitions.next_states[:, 0] - transitions.states[:, 0]
+        transitions.actions[:, 1] = np.clip(100.0 * step**2 - 1.0, -1, 1)
+        return transitions
+
+    policy = continuous_policy()
+    play, held_play = squared(velocity_transitions(4000, 0)), squared(velocity_transitions(500, 1))
+    optimizer = torch.optim.Adam(policy.idm_parameters(), lr=1e-3)
+    for seed in range(3):  # a network that helps on held-out play (an earlier rule kept half of it or more)
+        fit_idm(policy, optimizer, play, held_play, np.random.default_rng(seed))
+    assert policy.idm_prior.gate.tolist() == [0.0, 0.0]
+    window = torch.as_tensor(held_play.windows[:50])
+    policy.eval()
+    with torch.no_grad():
+        labels = policy.idm_head.mode(policy.idm_window_output(window))
+        torch.testing.assert_close(labels, policy.idm_prior(window).clamp(-1, 1))
+    # Judged on the policy's own held-out rollout transitions, the network's share is kept.
+    own, own_held = squared(velocity_transitions(4000, 2)), squared(velocity_transitions(500, 3))
+    policy.train()
+    for seed in range(3):
+        fit_idm(policy, optimizer, own, held_play, np.random.default_rng(seed), own_held)
+    assert policy.idm_prior.gate[1] > 0.5, policy.idm_prior.gate

@@ -79,7 +79,7 @@ def measure(work: Path, task: str, k: int, keys: str, seed: int, linear_part: bo
     read = config.idm_keys
     train = load_transitions(pre, config.observation_keys, context=k)
     test = load_transitions(expert, config.observation_keys, context=k)
-    # As the cycle starts: a tenth of I_pre held out (what the network's gate is judged on), never the expert.
+    # As the cycle starts: a tenth of I_pre held out to score it, and no rollout yet to judge a linear part's gate on.
     train_part, held_part = held_out_split(len(train), np.random.default_rng([seed, 0, 1]))
     train, held = train.take(train_part), train.take(held_part)
     optimizer = torch.optim.Adam(policy.idm_parameters(), lr=config.idm_lr)

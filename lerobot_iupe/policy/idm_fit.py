@@ -17,10 +17,13 @@ def fit_idm(
     data: Transitions,
     held_out: Transitions,
     rng: np.random.Generator,
+    own_held_out: Transitions | None = None,
 ) -> tuple[float, float]:
     """Train ``policy``'s IDM (an ``IUPEPolicy``'s) on all of ``data`` for ``idm_epochs`` shuffled epochs of
     ``idm_batch_size``, then score it on ``held_out``, transitions of which ``data`` holds no copy: label agreement
-    (discrete actions) or R² (continuous). Returns (the last batch's loss, the score; NaN with nothing held out)."""
+    (discrete actions) or R² (continuous). With a linear part, the network's share is judged on ``own_held_out``
+    alone (the policy's own held-out rollout transitions; none: the linear part labels alone, ``judge_gate``).
+    Returns (the last batch's loss, the score; NaN with nothing held out)."""
     config, device = policy.config, policy.device_of_weights
     train = rng.permutation(len(data))
     to = lambda x: torch.as_tensor(x, device=device)  # noqa: E731
@@ -39,7 +42,7 @@ def fit_idm(
     # lerobot-train clips (and logs) the norm of every parameter's gradient: only the policy model's may be left.
     optimizer.zero_grad(set_to_none=True)
     if policy.idm_prior is not None and bool(policy.idm_prior.fitted):
-        judge_gate(policy, held_out)
+        judge_gate(policy, own_held_out)
     policy.eval()
     with torch.no_grad():
         predicted = []

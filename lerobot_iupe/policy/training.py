@@ -280,7 +280,7 @@ class IUPETrainer:
             sampled = Transitions.concat([pre, rollouts])
         held = Transitions.concat([state.pre_held, new_held])
         start = time.perf_counter()
-        self.train_idm(sampled, held)
+        self.train_idm(sampled, held, new_held)
         state.idm_s += time.perf_counter() - start
         self.stats.update({"success_rate": success_rate, "rollout_return": float(returns.mean())})
         record = {
@@ -382,11 +382,11 @@ class IUPETrainer:
         train, held = held_out_split(len(data), self.state.rng, classes=classes)
         return data.take(train), data.take(held)
 
-    def train_idm(self, data: Transitions, held_out: Transitions) -> None:
+    def train_idm(self, data: Transitions, held_out: Transitions, own_held_out: Transitions | None = None) -> None:
         """Train the IDM on I^s (``data``, all of it) and score it on ``held_out`` (``idm_metric``), transitions
-        of which ``data`` holds no copy."""
+        of which ``data`` holds no copy; a linear part's gate is judged on ``own_held_out``, the policy's own."""
         state = self.state
-        loss, score = fit_idm(self.policy, state.idm_optimizer, data, held_out, state.rng)
+        loss, score = fit_idm(self.policy, state.idm_optimizer, data, held_out, state.rng, own_held_out)
         self.stats.update({"idm_loss": loss, self.idm_metric: score})
 
     # ------------------------------------------------------------ checkpoints
