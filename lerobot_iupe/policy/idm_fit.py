@@ -41,7 +41,7 @@ def fit_idm(
             optimizer.step()
     # lerobot-train clips (and logs) the norm of every parameter's gradient: only the policy model's may be left.
     optimizer.zero_grad(set_to_none=True)
-    if policy.idm_prior is not None and bool(policy.idm_prior.fitted):
+    if policy.idm_prior is not None and policy.idm_prior.is_fitted:
         judge_gate(policy, own_held_out)
     policy.eval()
     with torch.no_grad():

@@ -40,6 +40,11 @@ class LinearPrior(nn.Module):
         self.register_buffer("fitted", torch.zeros((), dtype=torch.bool))
         # The share of the network's correction kept when labelling, per dimension (``judge_gate``).
         self.register_buffer("gate", torch.ones(action_dim))
+        self.is_fitted = False  # ``fitted`` as a Python bool: reading the buffer waits for the GPU on every pass
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        self.is_fitted = bool(self.fitted)
 
     def features(self, windows: np.ndarray | Tensor, selected: bool = False) -> np.ndarray | Tensor:
         """[s_t, s_j − s_t for every other frame j] (N, F × columns), flattened, of the vector values of raw windows
@@ -80,6 +85,7 @@ class LinearPrior(nn.Module):
         self.weight[:, torch.as_tensor(keep)] = torch.as_tensor(weight, dtype=torch.float32)
         self.bias[torch.as_tensor(keep)] = torch.as_tensor(bias, dtype=torch.float32)
         self.fitted.fill_(True)
+        self.is_fitted = True
 
 
 def fit_on_expert(prior: LinearPrior, expert: ExpertFrames, offsets: list[int], keep: np.ndarray) -> None:

@@ -169,7 +169,7 @@ class IUPEPolicy(PreTrainedPolicy):
         """The network's ``output`` with the fitted linear part of raw ``window`` added to its mean (scaled units;
         not on a binary dimension, whose mean is a logit), the network's share gated when not training."""
         prior = self.idm_prior
-        if prior is None or not bool(prior.fitted):
+        if prior is None or not prior.is_fitted:
             return output
         head, dims = self.idm_head, self.config.action_dim
         shift = torch.where(head.binary, 0.0, head._scale(prior(window))).to(output.dtype)
@@ -365,7 +365,7 @@ class IUPEPolicy(PreTrainedPolicy):
             else:
                 if self.idm_prior is not None and not self.trainer.prior_ready:  # on the first step
                     self.trainer.prior_ready = True
-                    if not (self.trainer.resume and bool(self.idm_prior.fitted)):
+                    if not (self.trainer.resume and self.idm_prior.is_fitted):
                         keep = ~self.idm_head.binary.cpu().numpy()
                         fit_on_expert(self.idm_prior, expert, self.config.idm_window, keep)
                 window = expert.windows(rows, self.config.idm_window)

@@ -53,7 +53,7 @@ def labelling_pass(policy: IUPEPolicy, window: torch.Tensor, references: bool = 
     output = policy.labelling_output(window)
     if references and policy.config.camera_dims:
         output = torch.cat([output, policy.camera_reference(window).to(output.dtype)], dim=-1)
-    elif references and policy.idm_prior is not None and bool(policy.idm_prior.fitted):  # the IDM's ridge alone
+    elif references and policy.idm_prior is not None and policy.idm_prior.is_fitted:  # the IDM's ridge alone
         output = torch.cat([output, policy.idm_prior(window).to(output.dtype)], dim=-1)
     return output.float().cpu()
 
