@@ -5,7 +5,7 @@
 # outputs/fingerprints/<tag>/<run>/checkpoints/last/pretrained_model/iupe_cycles.jsonl without the *_s fields.
 # Runs: CartPole IUPE, BCO(α), BC (200 steps) and Maze 3×3 IUPE (60 steps), one CPU thread, --seed=3.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 tag=${1:?usage: benchmarks/measure/fingerprint_runs.sh TAG}
 bin=.venv/bin
 data=outputs/fingerprints/data
