@@ -220,3 +220,22 @@ def test_a_supervised_linear_part_reads_the_vector_columns_without_a_camera_fram
     whole.fit(whole.features(joined.numpy()), expert.actions[rows].numpy(), np.ones(3, dtype=bool))
     torch.testing.assert_close(prior.weight, whole.weight)
     torch.testing.assert_close(prior.bias, whole.bias)
+
+
+def test_a_camera_networks_frames_are_read_alone_as_the_whole_join_packs_them(tmp_path):
+    """``part_windows`` packs some keys' values as the whole join does, without the others (the camera dimension's
+    frames: reading every key and gathering the cameras' columns copied each camera value twice)."""
+    from lerobot_iupe.data.readers import ExpertFrames
+    from lerobot_iupe.policy.joint_fit import labelled_rows
+
+    root = tmp_path / "three-views"
+    write_three_views(root, episodes=2, seed=5, with_actions=True)
+    dataset = LeRobotDataset(f"local/{root.name}", root=root)
+    expert = ExpertFrames(dataset, [TOP, SIDE, OBS_STATE], True, torch.device("cpu"))
+    rows, offsets = labelled_rows(expert.episodes), [0, 1, 5]
+    joined = expert.windows(rows, offsets)
+    layout = expert.states.layout
+    for parts in ([0], [1], [0, 1], [1, 2], [0, 1, 2]):
+        read = expert.part_windows(rows, offsets, parts)
+        assert read.dtype == torch.float32 and read.shape == (len(rows), len(offsets), len(layout.indices(parts)))
+        torch.testing.assert_close(read, joined[:, :, layout.indices(parts)], rtol=0, atol=0)

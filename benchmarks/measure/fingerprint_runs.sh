@@ -3,7 +3,8 @@
 #   benchmarks/measure/fingerprint_runs.sh before   # ... change the code ...   benchmarks/measure/fingerprint_runs.sh after
 # Prints, per run, the SHA-256 prefix of model.safetensors; cycle records (timings aside) are compared by diffing
 # outputs/fingerprints/<tag>/<run>/checkpoints/last/pretrained_model/iupe_cycles.jsonl without the *_s fields.
-# Runs: CartPole IUPE, BCO(α), BC (200 steps) and Maze 3×3 IUPE (60 steps), one CPU thread, --seed=3.
+# Runs: CartPole IUPE, BCO(α), BC (200 steps), Maze 3×3 IUPE (60 steps) and continuous LunarLander IUPE (100 steps),
+# one CPU thread, --seed=3.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 tag=${1:?usage: benchmarks/measure/fingerprint_runs.sh TAG}
@@ -22,6 +23,8 @@ collect cp-random --env.type=cartpole --agent=random --episodes=200 --seed=1000
 collect mz-expert --env.type=maze --env.size=3 --env.image_size=21 --agent=expert --episodes=10 --video=false
 collect mz-random --env.type=maze --env.size=3 --env.image_size=21 --agent=random --random_start=true --episodes=40 \
   --seed=1000 --video=false --env.max_steps=15
+collect ll-expert --env.type=lunarlander --agent=expert --episodes=5
+collect ll-random --env.type=lunarlander --agent=random --episodes=20 --seed=1000
 train() {
   local name=$1 expert=$2 pre=$3
   shift 3
@@ -37,3 +40,4 @@ train cp-bco cp-expert cp-random "${short[@]}" --policy.sampling=false --policy.
   --policy.attention=false
 train cp-bc cp-expert-a cp-random "${short[@]}" --policy.supervised=true
 train mz-iupe mz-expert mz-random --steps=60 --batch_size=32 --policy.cycle_steps=20 --policy.rollout_episodes=6
+train ll-iupe ll-expert ll-random --steps=100 --batch_size=64 --policy.cycle_steps=50 --policy.rollout_episodes=2

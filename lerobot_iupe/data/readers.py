@@ -18,6 +18,7 @@ from lerobot_iupe.data.episodes import EpisodeFrames, column_array, episode_boun
 from lerobot_iupe.data.frame_cache import cached_frames
 from lerobot_iupe.data.observation import ObservationLayout
 from lerobot_iupe.data.transitions import Transitions, context_offsets
+from lerobot_iupe.data.video import resize_images
 
 
 def dataset_layout(meta: LeRobotDatasetMetadata, keys: list[str]) -> ObservationLayout:
@@ -135,6 +136,28 @@ class FrameTable:
             out[:, n] = self.parts[part][rows.reshape(-1), column - starts[part]]
         return out.reshape(*rows.shape, len(columns))
 
+    def packed_parts(self, rows: np.ndarray, parts: list[int]) -> Tensor:
+        """The joined frames' values of keys ``parts`` (positions, in layout order) for ``rows`` (any shape), as
+        ``self[rows][..., layout.indices(parts)]`` packs them, without reading or copying the other keys (a camera
+        network's frames: the gather after a whole join copied every camera value twice)."""
+        flat = np.asarray(rows, dtype=np.int64).reshape(-1)
+        out = torch.empty(len(flat), sum(self.layout.sizes[p] for p in parts), dtype=torch.float32)
+        start = 0
+        for p in parts:
+            where, shape, size = self.positions[p], self.layout.shapes[p], self.layout.sizes[p]
+            values = torch.from_numpy(np.ascontiguousarray(self.parts[p][flat if where is None else where[flat]]))
+            if self.layout.visual[p]:
+                values = resize_images(values, shape[1:]).reshape(len(flat), -1)
+                if values.dtype == torch.uint8:
+                    torch.div(values, 255.0, out=out[:, start : start + size])
+                else:
+                    out[:, start : start + size] = values
+            else:
+                out[:, start : start + size] = values.reshape(len(flat), -1)
+            start += size
+        out = out.reshape(*np.shape(rows), out.shape[1])
+        return out if self.device is None else out.to(self.device)
+
     def __getitem__(self, rows) -> Tensor:
         """The joined frames of ``rows`` (any shape of row numbers), shaped ``rows.shape + frame``."""
         rows = np.asarray(rows.cpu() if torch.is_tensor(rows) else rows, dtype=np.int64)
@@ -236,6 +259,10 @@ class ExpertFrames:
     def windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """Frames (B, len(offsets), …) at ``offsets`` around each row, clamped into its episode."""
         return self.states[window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])]
+
+    def part_windows(self, rows: np.ndarray, offsets: list[int], parts: list[int]) -> Tensor:
+        """Keys ``parts``' packed values (B, len(offsets), values) at ``offsets`` around each row (``packed_parts``)."""
+        return self.states.packed_parts(window_indices(rows, offsets, self.first_row[rows], self.last_row[rows]), parts)
 
     def column_windows(self, rows: np.ndarray, offsets: list[int], columns: list[int]) -> np.ndarray:
         """Vector ``columns`` of the joined frames (B, len(offsets), len(columns)) at ``offsets`` around each row,

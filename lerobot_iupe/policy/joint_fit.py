@@ -130,8 +130,8 @@ class JointFit:
         config = self.policy.config
         if not config.camera_dims:
             return None
-        frames = self.expert.windows(rows, config.camera_offsets)
-        return frames[:, :, self.policy.camera_columns.to(frames.device)]
+        cameras = [i for i, key in enumerate(config.observation_keys) if key in config.camera_keys]
+        return self.expert.part_windows(rows, config.camera_offsets, cameras)
 
     @torch.no_grad()
     def fit_camera_reference(self, rows: np.ndarray) -> None:
