@@ -78,8 +78,9 @@ class IUPEConfig(ObservationPolicyConfig):
     idm_source_kinds: list[str] | None = None
     # A linear part under any other continuous IDM (policy/linear_prior.py): a ridge from the window's vector values,
     # the network learning what it leaves. None = on when supervised (fitted on the frames it labels), off in the
-    # cycle: fitted on play, it moved Meta-World's first IDM both ways (benchmarks/cycle_linear_part.md). Resolved
-    # when training starts (a checkpoint saved before this option existed reads as off, fine-tuned too).
+    # cycle: there the first IDM labels by it alone, at the ridge, yet IUPE's success on Meta-World went 0.34 -> 0.13
+    # on reach, 0.39 -> 0.54 on pick-place (benchmarks/cycle_linear_part.md). Resolved when training starts (a
+    # checkpoint saved before this option existed reads as off, fine-tuned too).
     idm_linear_part: bool | None = None
     # The policy model reads the last n observations s_{t-n+1} … s_t (LeRobot's name; before an episode's first
     # frame that frame is repeated). 1 = the current observation only, as in the paper. The IDM is not affected.
