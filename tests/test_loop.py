@@ -161,7 +161,7 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
             goals.mean(),
         )
     mixed = 0
-    for (_, kwargs, (episodes, successes, _, _)), (args, _, sampled), ((trained, held), _, _) in zip(
+    for (_, kwargs, (episodes, successes, _, _)), (args, _, sampled), ((trained, held, own_held), _, _) in zip(
         drawing, sampled_sets.calls, idm_trainings.calls[1:], strict=True
     ):
         _, successful, _, size, _ = args
@@ -169,6 +169,7 @@ def test_the_cycle_samples_from_successful_runs_only_and_keeps_the_selected_mode
         # only runs that reached the goal, less a tenth held out before I^s draws copies of them
         new_held = held.take(np.arange(len(pre_held), len(held)))
         assert np.array_equal(held.states[: len(pre_held)], pre_held.states)
+        assert sorted_rows(own_held) == sorted_rows(new_held)  # a linear part's gate: the policy's own rollouts only
         assert sorted_rows(Transitions.concat([successful, new_held])) == sorted_rows(expected)
         assert len(new_held) <= len(held_out_split(len(expected), np.random.default_rng(0))[1])
         assert set(successful.actions.tolist()) == set(expected.actions.tolist())  # no action class held out whole
