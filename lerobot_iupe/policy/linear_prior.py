@@ -106,7 +106,7 @@ def judge_gate(policy: nn.Module, held_out: Transitions | None) -> None:
     policy's own rollout transitions, which the network did not train on; a binary dimension keeps all of it. With
     none (the first IDM, fitted on play alone) the share is 0 and the linear part labels alone: on Meta-World the
     network, fitted to play, labelled the expert below its linear part on 3 of 4 tasks even with its share judged on
-    held-out play, or on the held-out play nearest each expert window (benchmarks/cycle_linear_part.md)."""
+    held-out play, or on the held-out play nearest each expert window (benchmarks/cycle_gate.md)."""
     prior, head, dims = policy.idm_prior, policy.idm_head, policy.config.action_dim
     prior.gate.fill_(1.0)  # the network's whole correction while it is judged
     if held_out is None or not len(held_out):
