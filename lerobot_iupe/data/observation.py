@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch import Tensor
 
 from lerobot_iupe.data.video import resize_images
 
@@ -64,17 +65,26 @@ class ObservationLayout:
             return parts[0]
         if not self.fused:
             return torch.cat(parts, dim=1) if torch.is_tensor(parts[0]) else np.concatenate(parts, axis=1)
-        if torch.is_tensor(parts[0]):  # written in place, converted as they are copied: one pass over each frame
-            out = torch.empty(len(parts[0]), self.size, dtype=torch.float32, device=parts[0].device)
-            for i, (part, visual) in enumerate(zip(parts, self.visual, strict=True)):
-                part = part.reshape(len(part), -1)
-                if visual and part.dtype == torch.uint8:
-                    torch.div(part, 255.0, out=out[:, self.columns(i)])
-                else:
-                    out[:, self.columns(i)] = part
-            return out
+        if torch.is_tensor(parts[0]):
+            return pack_tensors(parts, self.visual)
         flat = [_as_float(part, visual).reshape(len(part), -1) for part, visual in zip(parts, self.visual, strict=True)]
         return np.concatenate(flat, axis=1)
+
+
+def pack_tensors(parts: list[Tensor], visual: list[bool] | tuple[bool, ...]) -> Tensor:
+    """Tensors (N, …), one per key, flattened and packed side by side as float32, cameras (``visual``) stored as
+    uint8 scaled to [0, 1]: written in place and converted as they are copied, one pass over each frame."""
+    flat = [part.reshape(len(part), -1) for part in parts]
+    out = torch.empty(len(flat[0]), sum(part.shape[1] for part in flat), dtype=torch.float32, device=flat[0].device)
+    start = 0
+    for part, is_camera in zip(flat, visual, strict=True):
+        columns = out[:, start : start + part.shape[1]]
+        if is_camera and part.dtype == torch.uint8:
+            torch.div(part, 255.0, out=columns)
+        else:
+            columns.copy_(part)
+        start += part.shape[1]
+    return out
 
 
 def _as_float(part: np.ndarray, visual: bool) -> np.ndarray:

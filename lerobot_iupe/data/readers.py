@@ -16,7 +16,7 @@ from torch import Tensor
 
 from lerobot_iupe.data.episodes import EpisodeFrames, column_array, episode_bounds, layout_shapes
 from lerobot_iupe.data.frame_cache import cached_frames
-from lerobot_iupe.data.observation import ObservationLayout
+from lerobot_iupe.data.observation import ObservationLayout, pack_tensors
 from lerobot_iupe.data.transitions import Transitions, context_offsets
 from lerobot_iupe.data.video import resize_images
 
@@ -141,20 +141,12 @@ class FrameTable:
         ``self[rows][..., layout.indices(parts)]`` packs them, without reading or copying the other keys (a camera
         network's frames: the gather after a whole join copied every camera value twice)."""
         flat = np.asarray(rows, dtype=np.int64).reshape(-1)
-        out = torch.empty(len(flat), sum(self.layout.sizes[p] for p in parts), dtype=torch.float32)
-        start = 0
+        values = []
         for p in parts:
-            where, shape, size = self.positions[p], self.layout.shapes[p], self.layout.sizes[p]
-            values = torch.from_numpy(np.ascontiguousarray(self.parts[p][flat if where is None else where[flat]]))
-            if self.layout.visual[p]:
-                values = resize_images(values, shape[1:]).reshape(len(flat), -1)
-                if values.dtype == torch.uint8:
-                    torch.div(values, 255.0, out=out[:, start : start + size])
-                else:
-                    out[:, start : start + size] = values
-            else:
-                out[:, start : start + size] = values.reshape(len(flat), -1)
-            start += size
+            where = self.positions[p]
+            part = torch.from_numpy(np.ascontiguousarray(self.parts[p][flat if where is None else where[flat]]))
+            values.append(resize_images(part, self.layout.shapes[p][1:]) if self.layout.visual[p] else part)
+        out = pack_tensors(values, [self.layout.visual[p] for p in parts])
         out = out.reshape(*np.shape(rows), out.shape[1])
         return out if self.device is None else out.to(self.device)
 
