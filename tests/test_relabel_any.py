@@ -184,24 +184,38 @@ def test_lerobot_doctor_fails_the_state_only_dataset_it_passes_once_relabelled(w
     assert doctor(state_only)["overall_severity"] == "FAIL"  # "no action features": the checker can fail
 
 
-def test_lerobot_act_trains_on_the_relabelled_dataset(continuous_idm, work):
-    dataset = work / "for-act"
+# Each policy small enough for a CPU test; Diffusion reads the point mass's environment_state (it needs an image or
+# that) and normalises actions by their range, ACT by their mean and std.
+CHUNKED_POLICIES = {
+    "act": ["--policy.type=act", "--policy.chunk_size=5", "--policy.n_action_steps=5", "--policy.dim_model=32",
+            "--policy.n_heads=2", "--policy.dim_feedforward=64"],
+    "diffusion": ["--policy.type=diffusion", "--policy.down_dims=[16,32]", "--policy.horizon=8",
+                  "--policy.n_action_steps=4", "--policy.diffusion_step_embed_dim=16"],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("policy", list(CHUNKED_POLICIES))
+def test_lerobots_chunked_policies_train_on_the_relabelled_labels(continuous_idm, work, policy):
+    dataset = work / f"for-{policy}"
     write_point_mass(dataset, episodes=3, seed=2, with_actions=False)
     relabel(continuous_idm, dataset)
-    out = work / "act"
+    out = work / policy
     run_in_process(
-        "lerobot-train", "--policy.type=act", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
-        f"--output_dir={out}", "--steps=3", "--batch_size=4", "--num_workers=0", "--policy.device=cpu",
-        "--policy.push_to_hub=false", "--wandb.enable=false", "--policy.chunk_size=5", "--policy.n_action_steps=5",
-        "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64", "--save_freq=3", check=True
+        "lerobot-train", *CHUNKED_POLICIES[policy], f"--dataset.repo_id=local/{dataset.name}",
+        f"--dataset.root={dataset}", f"--output_dir={out}", "--steps=3", "--batch_size=4", "--num_workers=0",
+        "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false", "--save_freq=3", check=True
     )  # fmt: skip
-    # ACT predicts our 2-D labels and normalises them by stats that are those of the written labels
+    # the policy predicts our 2-D labels and normalises them by stats that are those of the written labels
     config = json.loads((out / CHECKPOINT / "config.json").read_text())
-    assert config["output_features"]["action"]["shape"] == [2]
-    labels = np.asarray(LeRobotDataset("local/for-act", root=dataset).hf_dataset.with_format("numpy")["action"])
+    assert config["type"] == policy and config["output_features"]["action"]["shape"] == [2]
+    labels = np.asarray(LeRobotDataset(f"local/{dataset.name}", root=dataset).hf_dataset.with_format("numpy")["action"])
     stats = load_file(out / CHECKPOINT / "policy_postprocessor_step_0_unnormalizer_processor.safetensors")
-    np.testing.assert_allclose(stats["action.mean"].numpy(), labels.mean(0), rtol=1e-4, atol=1e-5)
-    np.testing.assert_allclose(stats["action.std"].numpy(), labels.std(0), rtol=1e-3, atol=1e-5)
+    if policy == "act":
+        np.testing.assert_allclose(stats["action.mean"].numpy(), labels.mean(0), rtol=1e-4, atol=1e-5)
+        np.testing.assert_allclose(stats["action.std"].numpy(), labels.std(0), rtol=1e-3, atol=1e-5)
+    else:
+        np.testing.assert_allclose(stats["action.min"].numpy(), labels.min(0), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(stats["action.max"].numpy(), labels.max(0), rtol=1e-5, atol=1e-6)
 
 
 def test_two_processes_write_the_same_bytes_as_one(continuous_idm, work):

@@ -1,9 +1,10 @@
-"""Do IDM labels train LeRobot's own policies? ACT trained with `lerobot-train` on (a) an expert dataset with its
-true actions and (b) the same dataset stripped of its actions and relabelled by an IDM trained on 20% of its
-episodes (`--policy.supervised=true`), both evaluated by LeRobot's evaluation loop; 3 seeds per arm.
+"""Do IDM labels train LeRobot's own policies? ACT (or Diffusion Policy, `--policy diffusion`) trained with
+`lerobot-train` on (a) an expert dataset with its true actions and (b) the same dataset stripped of its actions and
+relabelled by an IDM trained on 20% of its episodes (`--policy.supervised=true`), both evaluated by LeRobot's
+evaluation loop; 3 seeds per arm.
 
     python benchmarks/measure/downstream.py [--envs lunarlander so101_pickplace so101_camera so101_relative]
-        [--seeds 0 1 2]
+        [--seeds 0 1 2] [--policy diffusion]
 
 so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both;
 so101_relative also gives the block and goal seen from the end effector (`--env.relative_positions=true`);
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -75,6 +77,16 @@ ACT_SETTINGS = {
     "fit_step": ["--policy.chunk_size=1", "--policy.n_action_steps=1", *FIT],
 }
 DEFAULT_ACT = "chunk10"
+# LeRobot's Diffusion Policy with its own defaults (2 observations, a 64-action horizon, 32 actions played open loop,
+# DDPM with 100 steps, learning rate 1e-4 with its warm-up and cosine schedule) and a CPU-sized U-Net: its default
+# widths (512, 1024, 2048) are a 250M-parameter network for GPUs.
+DIFFUSION_FLAGS = ["--policy.type=diffusion", "--policy.down_dims=[128,256,512]", "--policy.push_to_hub=false",
+                   "--batch_size=64"]  # fmt: skip
+# Each policy's settings, by name: its flags (ACT: how it plays its chunks; Diffusion: LeRobot's defaults only).
+POLICY_SETTINGS = {
+    "act": {name: ACT_FLAGS + flags for name, flags in ACT_SETTINGS.items()},
+    "diffusion": {"lerobot": DIFFUSION_FLAGS},
+}
 COMMON = ["--env_eval_freq=0", "--log_freq=500"]  # beside steps.TRAIN_FLAGS
 
 
@@ -148,6 +160,7 @@ def measure(
     act: str = DEFAULT_ACT,
     act_steps: int | None = None,
     pull: float = 0.0,
+    policy: str = "act",
 ) -> tuple[list[dict], dict]:
     episodes, idm_steps, default_act_steps = ENVS[env]
     act_steps = act_steps or default_act_steps
@@ -191,12 +204,14 @@ def measure(
     def train_arm(run) -> tuple[Path, float]:
         labels, dataset, seed = run
         start = time.perf_counter()
-        name = f"{env}-act-true-s{seed}" if labels == "true" else f"{env}-act-idm-{labels_variant}-s{seed}"
-        if (act, act_steps) != (DEFAULT_ACT, default_act_steps):
+        arm = "true" if labels == "true" else f"idm-{labels_variant}"
+        name = f"{env}-{policy}-{arm}-s{seed}"
+        if (policy, act, act_steps) != ("act", DEFAULT_ACT, default_act_steps):
             name += f"-{act}-{act_steps}"
-        checkpoint = train(dataset, work / name, act_steps, seed, ACT_FLAGS + ACT_SETTINGS[act])
+        checkpoint = train(dataset, work / name, act_steps, seed, POLICY_SETTINGS[policy][act])
         return checkpoint, time.perf_counter() - start
 
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     with ThreadPoolExecutor(jobs) as pool:
         trained = list(pool.map(train_arm, runs))
     torch.set_num_threads(1)
@@ -206,7 +221,8 @@ def measure(
         fit = training_fit(checkpoint, dataset)
         rows.append(
             {
-                "env": env, "policy": "act", "labels": labels, "idm_context": k if labels == "idm" else None,
+                "env": env, "policy": policy, "commit": commit, "labels": labels,
+                "idm_context": k if labels == "idm" else None,
                 "pull_to_observation": pull if labels == "idm" and pull else None,
                 "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
@@ -232,10 +248,14 @@ def main() -> None:
     parser.add_argument(
         "--idm_keys", nargs="*", default=[], help="the observation keys the IDM reads (default: all of them)"
     )
+    parser.add_argument("--policy", default="act", choices=list(POLICY_SETTINGS), help="LeRobot's policy to train")
     parser.add_argument(
         "--act", default=DEFAULT_ACT, choices=list(ACT_SETTINGS), help="how ACT plays its chunks (see ACT_SETTINGS)"
     )
-    parser.add_argument("--act_steps", type=int, default=None, help="ACT's training steps (default: per env)")
+    parser.add_argument(
+        "--steps", "--act_steps", dest="act_steps", type=int, default=None,
+        help="the policy's training steps (default: per env)",
+    )  # fmt: skip
     parser.add_argument(
         "--pull_to_observation", type=float, default=0.0, help="lerobot-iupe-relabel's --pull_to_observation"
     )
@@ -244,11 +264,11 @@ def main() -> None:
     for env in args.envs:
         rows, quality = measure(
             env, work, args.seeds, args.eval_episodes, args.jobs, args.idm_context, args.arms, args.idm_keys,
-            args.act, args.act_steps, args.pull_to_observation,
+            args.act if args.policy == "act" else "lerobot", args.act_steps, args.pull_to_observation, args.policy,
         )  # fmt: skip
         if rows:
-            key = ("env", "labels", "idm_context", "pull_to_observation", "seed", "act", "act_steps")
-            update(Path(args.out), "downstream", rows, command, key=key)
+            key = ("env", "policy", "commit", "labels", "idm_context", "pull_to_observation", "seed", "act")
+            update(Path(args.out), "downstream", rows, command, key=(*key, "act_steps"))
         label_key = ("env", "idm_context", "idm_reads", "pull_to_observation")
         update(Path(args.out), "downstream_labels", [quality], command, key=label_key)
     print(render(Path(args.out)))
