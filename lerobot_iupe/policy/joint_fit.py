@@ -123,7 +123,10 @@ class JointFit:
             )
 
     def windows(self, rows: np.ndarray) -> torch.Tensor:
-        return self.expert.vector_windows(OBS_STATE, rows, self.policy.config.idm_window)
+        """The model's windows (B, F, D) of ``rows``: its vector keys joined, observation.state first."""
+        config = self.policy.config
+        parts = [self.expert.vector_windows(key, rows, config.idm_window) for key in config.idm_keys]
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)
 
     def camera(self, rows: np.ndarray) -> torch.Tensor | None:
         """The camera network's frames of ``rows`` (None where no dimension reads a camera)."""

@@ -121,7 +121,10 @@ def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelRe
             agreement = r_squared(labels[inner], true)
             per_dimension = per_dimension_r2(labels[inner], true)
             if config.joint_idm:
-                states = column_array(dataset.hf_dataset, OBS_STATE).astype(np.float32).reshape(total, -1)
+                states = np.concatenate([
+                    column_array(dataset.hf_dataset, key).astype(np.float32).reshape(total, -1)
+                    for key in config.idm_keys
+                ], axis=1)  # fmt: skip
                 state_names = feature_names(meta.features.get(OBS_STATE))
                 references = joint_references(policy, states, existing, bounds, np.flatnonzero(inner), state_names)
                 thumbnails = assemble_references(per_episode, bounds)
