@@ -76,7 +76,7 @@ def test_a_policy_with_history_learns_what_the_current_observation_cannot_tell(t
         run_in_process(
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", f"--dataset.repo_id=local/{data.name}",
             f"--dataset.root={data}", f"--output_dir={out}", "--num_workers=0", "--policy.device=cpu",
-            "--wandb.enable=false", "--steps=400", "--save_freq=400", "--batch_size=64", f"--policy.n_obs_steps={n}",
+            "--wandb.enable=false", "--steps=150", "--save_freq=150", "--batch_size=64", f"--policy.n_obs_steps={n}",
             check=True,
         )  # fmt: skip
         policy = IUPEPolicy.from_pretrained(out / CHECKPOINT).eval()
