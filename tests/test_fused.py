@@ -83,7 +83,7 @@ def fused_idm(shared_dir):
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", "--policy.idm_context=0",
             f"--dataset.repo_id=local/{labelled.name}", f"--dataset.root={labelled}", "--dataset.video_backend=pyav",
             f"--output_dir={work / 'idm'}", "--num_workers=0", "--policy.device=cpu", "--wandb.enable=false",
-            "--steps=400", "--save_freq=400", "--batch_size=64", "--policy.optimizer_lr=3e-3",
+            "--steps=250", "--save_freq=250", "--batch_size=64", "--policy.optimizer_lr=3e-3",
             "--policy.torch_threads=1", check=True
         )  # fmt: skip
 
