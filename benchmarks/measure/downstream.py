@@ -8,7 +8,8 @@ evaluation loop; 3 seeds per arm.
 
 so101_camera is the SO-101 arm seen by its front camera (64 px) with its state: the IDM and ACT read both;
 so101_relative also gives the block and goal seen from the end effector (`--env.relative_positions=true`);
-metaworld_push is Meta-World's push observed as state (`--env.type=metaworld_state`).
+metaworld_push (pick_place, peg_insert_side) is Meta-World's push (pick-place, peg-insert-side) observed as state
+(`--env.type=metaworld_state`).
 
 Writes the rows (env, policy, labels, seed, success_rate, …) into benchmarks/relabel.json under "downstream" and
 renders benchmarks/relabel.md. Evaluation is `eval_policy_all`, what `lerobot-eval` runs, without its video
@@ -47,6 +48,8 @@ ENVS = {  # name -> (expert episodes, IDM steps, ACT steps)
     "so101_camera": (50, 2000, 1500),
     "so101_relative": (50, 2000, 1500),
     "metaworld_push": (50, 2000, 1500),
+    "metaworld_pick_place": (50, 2000, 1500),
+    "metaworld_peg_insert_side": (50, 2000, 1500),
 }
 # The env settings of each name: SO-101 with its front camera (64 px) and its state, no block or goal positions;
 # SO-101 with the block and goal also seen from the end effector.
@@ -56,6 +59,8 @@ ENV_SETTINGS = {
     "so101_camera": {"type": "so101_pickplace", "image_obs": True, "image_size": 64},
     "so101_relative": {"type": "so101_pickplace", "relative_positions": True},
     "metaworld_push": {"type": "metaworld_state", "task": "push-v3"},
+    "metaworld_pick_place": {"type": "metaworld_state", "task": "pick-place-v3"},
+    "metaworld_peg_insert_side": {"type": "metaworld_state", "task": "peg-insert-side-v3"},
 }
 # A CPU-sized ACT (LeRobot's defaults are for 480-px cameras): 10-step chunks, 128-wide transformer.
 ACT_FLAGS = [
