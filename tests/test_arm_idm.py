@@ -406,6 +406,20 @@ def test_an_arm_idm_asked_of_an_unsupervised_run_or_of_cameras_is_refused_naming
         IUPEConfig(joint_state_columns=[0, 1])
     with pytest.raises(ValueError, match="idm_observation_keys.*joint_state_columns=\\[\\]"):
         IUPEConfig(supervised=True, joint_state_columns=[0], idm_observation_keys=["observation.images.front"])
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    features = {
+        "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(2,)),
+        "observation.images.front": PolicyFeature(type=FeatureType.VISUAL, shape=(3, 48, 64)),
+    }
+    camera_too = IUPEConfig(
+        input_features=features, action_low=[-1.0, -1.0], action_high=[1.0, 1.0], supervised=True,
+        joint_state_columns=[0, 1], idm_observation_keys=["observation.state", "observation.images.front"],
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="linear-first IDM.*reads vectors only"):
+        camera_too.validate_features()
+    camera_too.idm_observation_keys = ["observation.state"]
+    camera_too.validate_features()  # the same run reading the state alone is accepted
     assert IUPEConfig(supervised=True, joint_state_columns=[]).idm_window == [0, 1]
 
 
