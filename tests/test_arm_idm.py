@@ -211,6 +211,33 @@ def test_a_leader_of_another_arm_takes_the_fit_over_every_column_where_its_map_m
     assert report["fit"][0] == "own"  # shoulder_pan is joint_1, sign aside
 
 
+def object_and_sensor_episodes(episodes: int, seed: int, sensor_spread: float, length: int = 200) -> tuple:
+    """A hand (column 0) whose commanded delta a_t = 10·(s_{t+1} − s_t) + 3·object_t + e_t, an object (column 1) that
+    shows part of it, a third column that moves, and a sensor (column 2) at ``sensor_spread`` × e_t: barely moving,
+    yet in the labelled episodes it follows what no other column shows (Meta-World peg-insert-side's peg tilt)."""
+    rng = np.random.default_rng(seed)
+    states, actions = [], []
+    for _ in range(episodes):
+        walks = np.cumsum(rng.normal(0.0, 0.05, size=(length + 1, 4)), axis=0)
+        noise = rng.normal(0.0, 0.3, size=length + 1)
+        walks[:, 2] = sensor_spread * noise if sensor_spread < 1e-3 else rng.normal(0.0, sensor_spread, length + 1)
+        states.append(walks[:length])
+        actions.append(10.0 * (walks[1:, 0] - walks[:-1, 0]) + 3.0 * walks[:-1, 1] + noise[:length])
+    return np.concatenate(states), np.concatenate(actions)[:, None], np.repeat(np.arange(episodes), length)
+
+
+def test_a_column_idle_in_the_labelled_episodes_is_not_read_where_a_new_episode_moves_it():
+    offsets = list(range(-1, 4))
+    states, actions, episodes = object_and_sensor_episodes(4, 0, sensor_spread=1e-5)
+    sources = ([0], [0], ["difference"])
+    weight, bias, report = fit_linear(windows_of(states, offsets, 200), actions, episodes, offsets, sources, [False])
+    assert report["fit"] == ["all"]  # the object's column explains what the hand's own window does not
+    assert not weight[[f * 4 + 2 for f in range(len(offsets))], 0].any()  # the idle sensor has no weight
+    moved, new_actions, _ = object_and_sensor_episodes(3, 50, sensor_spread=0.05)  # the sensor moves, unrelated
+    predicted = windows_of(moved, offsets, 200).reshape(len(moved), -1) @ weight + bias
+    assert r2(predicted, new_actions)[0] > 0.9  # all but e (about 3 % of the variance); reading the sensor: −7.8e6
+
+
 def test_a_camera_dimensions_linear_part_is_its_labelled_mean_whatever_the_state_does_later():
     states, actions, episodes = generated(OTHER_LEADER, 2, 0)
     sources = ([0, 1, 2, 4, 5, 6], [2] * 6, ["position"] * 5 + ["camera"])
