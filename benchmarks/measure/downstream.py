@@ -222,7 +222,9 @@ def measure(
     torch.set_num_threads(1)
     rows = []
     for (labels, dataset, seed), (checkpoint, train_s) in zip(runs, trained, strict=True):
+        start = time.perf_counter()
         result = evaluate_checkpoint(checkpoint, env_cfg, episodes_eval)
+        eval_s = time.perf_counter() - start
         fit = training_fit(checkpoint, dataset)
         rows.append(
             {
@@ -232,6 +234,7 @@ def measure(
                 "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
                 "episodes": episodes_eval, "act": act, "act_steps": act_steps, "train_s": train_s,
+                "eval_s": eval_s,
                 "training_fit_r2_per_dim": fit,
             }
         )  # fmt: skip

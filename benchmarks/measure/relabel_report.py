@@ -64,6 +64,12 @@ def _fit(rows: list[dict]) -> str:
     return ", ".join(f"{x:.2f}" for x in np.mean(fits, axis=0)) if fits else "–"
 
 
+def _seconds(rows: list[dict], key: str) -> str:
+    """The runs' mean seconds of ``key`` (– where a row does not record it)."""
+    values = [r[key] for r in rows if r.get(key) is not None]
+    return f"{np.mean(values):.0f}" if len(values) == len(rows) else "–"
+
+
 def _real_cameras(data: dict) -> list[str]:
     """Targets: held-out R² ≥ 0.95 per joint, relabel ≥ 0.8× the plain decode rate, peak memory ≤ 4 GB."""
     lines = [
@@ -148,11 +154,13 @@ def render(out: Path) -> str:
             "Diffusion (`--policy diffusion`) is LeRobot's Diffusion Policy with its defaults (2 observations, a "
             "64-action horizon of which it plays 32 open loop, DDPM with 100 steps, learning rate 1e-4 with warm-up "
             "and cosine decay) and a U-Net of widths 128, 256, 512 instead of 512, 1024, 2048, sized for a CPU. "
-            "*Commit*: the code that labelled and trained the row (– for rows from before it was recorded).",
+            "*Commit*: the code that labelled and trained the row (– for rows from before it was recorded). "
+            "*Training s* and *evaluation s*: one run's wall seconds, mean over seeds, with `--jobs` runs sharing the "
+            "machine's cores (– where a row does not record them).",
             "",
             "| env | policy | steps | commit | labels | seeds | success rate per seed | mean ± std | return (mean) "
-            "| training-frame R² |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            "| training-frame R² | training s | evaluation s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         rows = data["downstream"]
         summary = {}
@@ -168,7 +176,8 @@ def render(out: Path) -> str:
                     lines.append(
                         f"| {env} | {' | '.join(map(str, setting))} | {arm} | {len(mine)} "
                         f"| {', '.join(f'{x:.2f}' for x in rates)} | {rates.mean():.3f} ± {_f(spread)} "
-                        f"| {np.mean([r['avg_sum_reward'] for r in mine]):.2f} | {_fit(mine)} |"
+                        f"| {np.mean([r['avg_sum_reward'] for r in mine]):.2f} | {_fit(mine)} "
+                        f"| {_seconds(mine, 'train_s')} | {_seconds(mine, 'eval_s')} |"
                     )
         lines += [
             "", "| env | policy | steps | commit | labels | (b) / (a) | target 0.9 |", "|---|---|---|---|---|---|---|"
