@@ -100,6 +100,8 @@ class JointFit:
 
     def __init__(self, policy: nn.Module, expert: ExpertFrames, resume: bool):
         self.policy, self.expert = policy, expert
+        config = policy.config
+        self.camera_parts = [i for i, key in enumerate(config.observation_keys) if key in config.camera_keys]
         rows = labelled_rows(expert.episodes)
         rows = rows[expert.first_row[rows] != expert.last_row[rows]]  # a one-frame episode has no window
         held = gate_rows(expert, rows)
@@ -133,8 +135,7 @@ class JointFit:
         config = self.policy.config
         if not config.camera_dims:
             return None
-        cameras = [i for i, key in enumerate(config.observation_keys) if key in config.camera_keys]
-        return self.expert.part_windows(rows, config.camera_offsets, cameras)
+        return self.expert.part_windows(rows, config.camera_offsets, self.camera_parts)
 
     @torch.no_grad()
     def fit_camera_reference(self, rows: np.ndarray) -> None:
