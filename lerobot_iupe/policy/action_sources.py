@@ -54,12 +54,15 @@ def is_rate_name(name: str) -> bool:
 
 
 def idle_dimensions(actions: np.ndarray) -> np.ndarray:
-    """Per action dimension, whether it barely moved in these (labelled) frames: its spread below ``IDLE_SHARE`` of
-    the median spread of all dimensions (never with fewer than three dimensions: no median to judge by)."""
+    """Per action dimension (or state column), whether it barely moved in these (labelled) frames: its spread below
+    ``IDLE_SHARE`` of the median spread of the dimensions that moved at all, so that columns that never move (an
+    environment state's padding: 16 of Meta-World's 43) do not pull the median down to the barely moving ones (never
+    with fewer than three dimensions: no median to judge by)."""
     spread = np.asarray(actions, np.float64).std(axis=0)
-    if len(spread) < 3:
+    moved = spread[spread > 0]
+    if len(spread) < 3 or not len(moved):
         return np.zeros(len(spread), dtype=bool)
-    return spread < IDLE_SHARE * np.median(spread)
+    return spread < IDLE_SHARE * np.median(moved)
 
 
 def max_lag(fps: float | None) -> int:

@@ -47,8 +47,6 @@ REFERENCE_ALPHA = 1.0
 GATE_SHARE = 0.2
 # The fit over every column replaces the joint's own window only where its held-out error is below this share of it.
 CLEARLY_BETTER = 0.8
-# A column is idle in the labelled frames when its spread is below this share of the median spread of the moving ones.
-IDLE_COLUMN_SHARE = 0.1
 
 
 class FoldSums(NamedTuple):
@@ -193,18 +191,6 @@ def copy_map(
     return base * gains
 
 
-def idle_columns(windows: np.ndarray) -> np.ndarray:
-    """Per column of the windows (N, F, D), whether it barely moved in these labelled frames: its spread below
-    ``IDLE_COLUMN_SHARE`` of the median spread of the columns that moved at all. The fit over every column leaves
-    them out: standardised, their noise is a feature whose effect was never seen, and a new episode that moves them
-    extrapolates (Meta-World peg-insert-side: the peg's orientation, spread 1e-5 in 10 labelled episodes, tilted in
-    a held-out one and sent its dz labels to R² −3.76)."""
-    spread = np.asarray(windows, np.float64).reshape(-1, windows.shape[-1]).std(axis=0)
-    if not (spread > 0).any():
-        return np.ones(len(spread), dtype=bool)
-    return spread < IDLE_COLUMN_SHARE * np.median(spread[spread > 0])
-
-
 def fit_linear(
     windows: np.ndarray,
     actions: np.ndarray,
@@ -233,7 +219,11 @@ def fit_linear(
     # reads them: over the whole window, 43 columns × 37 frames of Meta-World push, the fit over 616 labelled frames
     # labelled held-out episodes' dz at R² 0.956 against 0.975.
     central = [f for f, offset in enumerate(offsets) if offset <= 1 - offsets[0]]
-    moving = np.flatnonzero(~idle_columns(windows))
+    # A column that barely moved in the labelled frames (``idle_dimensions``, as the source search skips it) is left
+    # out: standardised, its noise is a feature whose effect was never seen, and a new episode that moves it
+    # extrapolates (Meta-World peg-insert-side: the peg's tilt, spread 1e-5 in 10 labelled episodes, sent a held-out
+    # episode's dz labels to R² −3.76 over 40 of them).
+    moving = np.flatnonzero(~idle_dimensions(windows.reshape(-1, state_dim)))
     every_column = np.array([f * state_dim + c for f in central for c in moving], dtype=np.int64)
     weight, bias = copy.copy(), np.zeros(actions.shape[1])
     owns = [np.arange(window_frames) * state_dim + column for column in columns]
