@@ -47,8 +47,10 @@ from lerobot_iupe.policy.joint_idm import (
     episode_blocks,
     fit_linear,
     fit_ridge,
+    fold_sums,
     gate_weights,
     selection_folds,
+    solve_ridge,
 )
 
 DELAY = 4
@@ -261,6 +263,19 @@ def test_ridge_recovers_a_linear_map_and_chooses_each_targets_strength_by_held_o
     # Folds are contiguous blocks of each episode, BLOCKS to an episode.
     blocks = episode_blocks(np.array([7] * 2 * BLOCKS + [3] * BLOCKS))
     assert blocks.tolist() == [BLOCKS + n // 2 for n in range(2 * BLOCKS)] + list(range(BLOCKS))
+
+
+def test_a_ridge_over_some_columns_solved_from_sums_over_more_is_the_ridge_fitted_on_those_columns_alone():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(400, 6)) * rng.uniform(0.1, 5.0, size=6)
+    y = x @ rng.normal(size=(6, 2)) + rng.normal(size=(400, 2))
+    folds = selection_folds(np.repeat(np.arange(4), 100))
+    sums = fold_sums(x, y, folds)
+    for columns, target in (([0, 2, 5], 0), ([1, 3], 1), (list(range(6)), 1)):
+        alone = fit_ridge(x[:, columns], y[:, [target]], None, folds=folds)
+        from_sums = solve_ridge(sums, columns=columns, targets=[target])
+        for a, b in zip(alone, from_sums, strict=True):
+            np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12)
 
 
 def test_the_gate_keeps_what_the_network_gets_right_and_drops_what_it_gets_wrong():
