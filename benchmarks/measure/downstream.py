@@ -195,7 +195,8 @@ def measure(
     start = time.perf_counter()
     run("lerobot-iupe-relabel", f"--policy.path={idm}", f"--dataset.repo_id=local/{relabelled.name}",
         f"--dataset.root={relabelled}", f"--pull_to_observation={pull}")  # fmt: skip
-    quality = {"env": env, "idm_context": k, "idm_reads": read, "pull_to_observation": pull,
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    quality = {"env": env, "commit": commit, "idm_context": k, "idm_reads": read, "pull_to_observation": pull,
                "labelled_episodes": n_labelled, "episodes": episodes,
                "idm_steps": idm_steps, "relabel_s": time.perf_counter() - start,
                **label_quality(env, truth, relabelled, held_out_from=n_labelled)}  # fmt: skip
@@ -213,10 +214,10 @@ def measure(
         name = f"{env}-{policy}-{arm}-s{seed}"
         if (policy, act, act_steps) != ("act", DEFAULT_ACT, default_act_steps):
             name += f"-{act}-{act_steps}"
+        reused = (work / name / CHECKPOINT).exists()
         checkpoint = train(dataset, work / name, act_steps, seed, POLICY_SETTINGS[policy][act])
-        return checkpoint, time.perf_counter() - start
+        return checkpoint, None if reused else time.perf_counter() - start  # a reused run's time is not known
 
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     with ThreadPoolExecutor(jobs) as pool:
         trained = list(pool.map(train_arm, runs))
     torch.set_num_threads(1)

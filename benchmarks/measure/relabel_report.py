@@ -200,14 +200,14 @@ def render(out: Path) -> str:
             "### The labels of (b), against the stripped true actions (frames with a successor, on the episodes "
             "the IDM did not train on)",
             "",
-            "| env | k | IDM reads | IDM trained on (episodes) | scored frames | R² | R² per dimension "
+            "| env | commit | k | IDM reads | IDM trained on (episodes) | scored frames | R² | R² per dimension "
             "| R² of the effect | engines on/off agree |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for q in data["downstream_labels"]:
             per_dim = ", ".join(_f(x) for x in q["r2_per_dim"])
             lines.append(
-                f"| {q['env']} | {q.get('idm_context', 0)}"
+                f"| {q['env']} | {q.get('commit') or '–'} | {q.get('idm_context', 0)}"
                 f"{f', pulled {pull:g}σ' if (pull := q.get('pull_to_observation')) else ''} "
                 f"| {q.get('idm_reads') or '–'} "
                 f"| {q['labelled_episodes']} of {q['episodes']} | {q['frames']}"
