@@ -10,8 +10,9 @@ regression's correction solved in closed form, and a small network per joint ove
 correction is kept only as far as it helps on labelled frames it did not train on (``gate``).
 
 The correction is one of two candidates per joint, both shrunk toward the copy: a ridge on the joint's own window
-(physically grounded) or a ridge over that and every vector column's central frames (the state and any other vector
-key the model reads, such as the environment state that shows the puck a hand pushes). The second is taken only
+(physically grounded) or a ridge over that and the central frames of every vector column that moved in the labelled
+frames (the state and any other vector key the model reads, such as the environment state that shows the puck a hand
+pushes; a column that barely moved would be extrapolated where a new episode moves it). The second is taken only
 where it predicts held-out *episodes* clearly better (``CLEARLY_BETTER``): on a new episode a joint that barely
 moved in the labelled ones still follows its own state, and a fit over many columns from few episodes extrapolates
 worse (on a real humanoid, a ridge over all 26 joints scored R² 0.852 where each joint's own window scored 0.980). A
