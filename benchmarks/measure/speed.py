@@ -12,6 +12,9 @@ put first on PYTHONPATH) and this tree, on the same data.
 
     python benchmarks/measure/speed.py [--frames 2000] [--baseline d03e093] [--steps 300] [--work outputs/speed]
 
+Relabelling's "before" runs the baseline's code on this tree's checkpoint: it needs a baseline that reads it and has
+``--num_workers`` (``--only relabel --baseline 5a43bd2``; d03e093 has neither).
+
 Writes benchmarks/speed.json and benchmarks/speed.md.
 """
 
