@@ -31,6 +31,7 @@ PHASES = {
     "frame cache build": "frame_cache.py:cached_frames",
     "relabel: decoding (FrameReader.parts)": "readers.py:parts",
     "relabel: IDM outputs": "modeling_iupe.py:labelling_output",
+    "relabel: the pull's regression (--pull_to_observation)": "consistency.py:observation_regression",
 }
 
 
