@@ -207,7 +207,7 @@ def measure(
     datasets = {"true": truth, "idm": relabelled}
     runs = [(labels, datasets[labels], seed) for labels in arms for seed in seeds]
 
-    def train_arm(run) -> tuple[Path, float]:
+    def train_arm(run) -> tuple[Path, float | None]:
         labels, dataset, seed = run
         start = time.perf_counter()
         arm = "true" if labels == "true" else f"idm-{labels_variant}"
