@@ -240,6 +240,26 @@ def test_a_supervised_run_cannot_select_without_an_env(cartpole_labelled, cartpo
     assert {p: p.stat().st_mtime_ns for p in copy.rglob("*")} == files  # the dataset is left as it was
 
 
+def test_idm_only_trains_the_idm_alone_and_its_checkpoint_refuses_to_act(cartpole_labelled, cartpole_random):
+    policy = build(cartpole_labelled, cartpole_random, supervised=True, idm_only=True)
+    before = {k: v.clone() for k, v in policy.state_dict().items()}
+    policy.train()
+    loss, logged = policy.forward(frame_batch(cartpole_labelled, 16))
+    loss.backward()
+    assert set(logged) == {"idm_loss"}
+    assert all(p.grad is None for name, p in policy.named_parameters() if name.startswith("pm_"))
+    assert non_policy_gradients(policy) == []  # every gradient is the optimizer's: the IDM's
+    train_steps(policy, cartpole_labelled, 3)
+    after = policy.state_dict()
+    assert all(torch.equal(v, after[k]) for k, v in before.items() if k.startswith("pm_"))
+    assert any(not torch.equal(v, after[k]) for k, v in before.items() if k.startswith("idm_"))
+    with pytest.raises(ValueError, match=r"--policy.idm_only=true.*lerobot-iupe-relabel"):
+        policy.select_action({"observation.state": torch.zeros(1, 4)})
+    for wrong in ({}, {"selection_episodes": 2}):  # the IUPE cycle's, or a selection that plays the policy model
+        with pytest.raises(ValueError, match=r"--policy.idm_only=true .* --policy.supervised=true"):
+            IUPEConfig(idm_only=True, supervised=bool(wrong), **wrong)
+
+
 def test_rollouts_play_only_the_last_rollout_layouts_of_the_expert_dataset(maze_expert, maze_random, monkeypatch):
     demonstrated = list(dict.fromkeys(read_iupe_meta(maze_expert)["layout_ids"]))
     policy = build(maze_expert, maze_random, rollout_layouts=2)

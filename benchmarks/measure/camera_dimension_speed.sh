@@ -1,6 +1,7 @@
 #!/bin/bash
 # Seconds per training step of a camera dimension (the default IDM on the velocity arm) and of the IDM of cameras and
-# state (--policy.joint_state_columns=[]), this tree against a baseline revision, on the same machine in one run.
+# state (--policy.joint_state_columns=[]), this tree against a baseline revision, on the same machine in one run; and
+# the default trained alone (--policy.idm_only=true: no policy model, what a relabelling run needs).
 #     bash benchmarks/measure/camera_dimension_speed.sh [BASELINE=5a43bd2] [WORK=outputs/camera-dimension-speed]
 # Writes the velocity arm at 480x640 (two AV1 cameras, 5 episodes of 150 frames) once; prints one line per run:
 # seconds per step at steps 40 and 60 (batch 64), wall time with the fits, peak RSS (KB).
@@ -24,7 +25,7 @@ train() { # output code extra...
     --output_dir="$out" --wandb.enable=false > "$out.log" 2>&1
 }
 train "$WORK/warm" "$REPO" --batch_size=8 --steps=1  # builds the frame cache outside the timed runs
-for run in "now default $REPO" "before default $WORK/code-$BASELINE" \
+for run in "now default $REPO" "now alone $REPO --policy.idm_only=true" "before default $WORK/code-$BASELINE" \
            "now fused $REPO --policy.joint_state_columns=[]" "before fused $WORK/code-$BASELINE --policy.joint_state_columns=[]"; do
   set -- $run
   name=$1-$2 code=$3; shift 3

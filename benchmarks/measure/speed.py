@@ -179,7 +179,16 @@ def main() -> None:
 
     if "train" in args.only:
         rows = []
-        for idm, extra in (("camera IDM", ["--policy.joint_state_columns=[]"]), ("arm IDM (default)", [])):
+        camera = ["--policy.joint_state_columns=[]"]
+        # (row, tag, the flags of both, this tree's own): the IDM alone is what a relabelling run needs; the baseline
+        # has no --policy.idm_only and trains its policy model too, as any run of its did
+        variants = (
+            ("camera IDM", "camera", camera, []),
+            ("arm IDM (default)", "arm", [], []),
+            ("camera IDM trained alone (--policy.idm_only=true; before: with its policy model)", "camera-alone",
+             camera, ["--policy.idm_only=true"]),
+        )  # fmt: skip
+        for idm, tag, extra, own in variants:
             row = {
                 "idm": idm,
                 "frames": args.frames,
@@ -188,9 +197,9 @@ def main() -> None:
                 "baseline": args.baseline,
             }
             for name, env in (("before", before), ("after", after)):
-                out = work / f"train-{name}-{'camera' if extra else 'arm'}-{args.frames}"
+                out = work / f"train-{name}-{tag}-{args.frames}"
                 subprocess.run(["rm", "-rf", str(out)], check=True)
-                row[name] = train(root, out, args.steps, env, *extra)
+                row[name] = train(root, out, args.steps, env, *extra, *(own if name == "after" else []))
             row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
             print(row, flush=True)
             rows.append(row)

@@ -20,6 +20,10 @@ SUPERVISED_IDM_CONTEXT = 1
 # How far after t the camera network of a camera dimension looks (t and t + this): a gripper's jaws take a few tenths
 # of a second to follow a key press; on a real arm's 10 fps wrist camera frames t and t+5 labelled it best.
 CAMERA_REACH_SECONDS = 0.5
+IDM_ONLY_CANNOT_ACT = (
+    "this checkpoint trained its inverse dynamics model alone (--policy.idm_only=true): it labels datasets "
+    "(lerobot-iupe-relabel), but its policy model was never trained; train without --policy.idm_only to act"
+)
 
 
 @PreTrainedConfig.register_subclass("iupe")
@@ -46,6 +50,9 @@ class IUPEConfig(ObservationPolicyConfig):
     attention: bool = True
     # Behaviour cloning on the dataset's true actions (BC), the IDM trained on them too: no env, no pre-demos.
     supervised: bool = False
+    # With supervised: train the IDM alone, for lerobot-iupe-relabel. The policy model is not trained (on a camera
+    # dataset it is about half of a step's cost: benchmarks/action_sources.md), and the checkpoint refuses to act.
+    idm_only: bool = False
     # Continuous dimensions that take only their two bounds (a gripper commanded open or shut, e.g. [3] for
     # SO-101's grasp): fitted as a Bernoulli between the bounds and played as one of them, never in between.
     # Measured on SO-101 BC: benchmarks/findings.md.
@@ -148,6 +155,12 @@ class IUPEConfig(ObservationPolicyConfig):
             raise ValueError(f"--policy.idm_context must be 0 or more frames, got {self.idm_context}")
         if self.idm_lag is not None and self.idm_lag < 0:
             raise ValueError(f"--policy.idm_lag must be 0 or more frames, got {self.idm_lag}")
+        if self.idm_only and (not self.supervised or self.selection_episodes):
+            raise ValueError(
+                "--policy.idm_only=true trains the IDM alone on labelled frames: it needs --policy.supervised=true, "
+                f"and no --policy.selection_episodes (got {self.selection_episodes}), which would play the untrained "
+                "policy model"
+            )
         if self.joint_state_columns and not self.supervised:
             raise ValueError(
                 f"--policy.joint_state_columns={self.joint_state_columns} (the arm IDM) needs "

@@ -17,16 +17,10 @@ import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
-from lerobot_iupe.policy.configuration_iupe import IUPEConfig
+from lerobot_iupe.policy.configuration_iupe import IDM_ONLY_CANNOT_ACT, IUPEConfig
 from lerobot_iupe.policy.joint_idm import JointIDM
 from lerobot_iupe.policy.linear_prior import LinearPrior, fit_on_expert
-from lerobot_iupe.policy.networks import (
-    CameraIDM,
-    FusedEncoder,
-    VectorEncoder,
-    make_action_head,
-    make_image_encoder,
-)
+from lerobot_iupe.policy.networks import CameraIDM, FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
 from lerobot_iupe.policy.threads import acting_threads
 from lerobot_iupe.policy.training import IUPETrainer
 
@@ -325,8 +319,9 @@ class IUPEPolicy(PreTrainedPolicy):
     # ------------------------------------------------------------ LeRobot API
 
     def get_optim_params(self):
-        """The policy model's parameters; supervised, the IDM's too (both learn from the true actions)."""
-        pm = list(self.pm_encoder.parameters()) + list(self.pm_head.parameters())
+        """The policy model's parameters; supervised, the IDM's too (both learn from the true actions); the IDM's
+        alone with ``idm_only``."""
+        pm = [] if self.config.idm_only else list(self.pm_encoder.parameters()) + list(self.pm_head.parameters())
         return pm + self.idm_parameters() if self.config.supervised else pm
 
     def reset(self) -> None:
@@ -341,6 +336,8 @@ class IUPEPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
         """The policy model's action as LeRobot's env loop wants it, (B, action_dim): the mode, or a draw with
         ``eval_mode="sample"`` (whatever the training switches). Training rollouts draw on their own."""
+        if self.config.idm_only:
+            raise ValueError(IDM_ONLY_CANNOT_ACT)
         with acting_threads(self.config.threads):
             self._history = self.push_history(self._history, self.observation(batch))
             output = self.pm_history_output(self._history)
@@ -356,9 +353,8 @@ class IUPEPolicy(PreTrainedPolicy):
             raise RuntimeError("IUPE training needs the expert dataset's metadata (make_policy(ds_meta=…))")
         expert = self.trainer.expert_frames()
         rows = expert.rows(batch["index"])
-        if self.config.supervised:  # BC on the true actions, and the IDM on the same frames and actions
+        if self.config.supervised:  # BC on the true actions (not with idm_only), and the IDM on the same ones
             labels = expert.actions[rows]
-            pm_loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
             if self.config.joint_idm:
                 window, camera, idm_rows = self.trainer.joint_idm_batch(rows)
                 idm_loss = self.idm_head.loss(self.joint_idm_output(window, camera=camera), expert.actions[idm_rows])
@@ -370,8 +366,10 @@ class IUPEPolicy(PreTrainedPolicy):
                         fit_on_expert(self.idm_prior, expert, self.config.idm_window, keep)
                 window = expert.windows(rows, self.config.idm_window)
                 idm_loss = self.idm_head.loss(self.idm_window_output(window), labels)
-            loss = pm_loss + idm_loss
-            return loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
+            if self.config.idm_only:
+                return idm_loss, {"idm_loss": float(idm_loss.detach())}
+            pm_loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels)
+            return pm_loss + idm_loss, {"pm_loss": float(pm_loss.detach()), "idm_loss": float(idm_loss.detach())}
         # first: on the first step it starts (or restores) the cycle
         labels, spread = self.trainer.labels(expert.transition_windows(rows, self.config.idm_window))
         loss = self.pm_head.loss(self.pm_history_output(expert.windows(rows, self.config.obs_window)), labels, spread)
