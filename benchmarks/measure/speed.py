@@ -273,7 +273,11 @@ def render(results: dict, page: Path) -> None:
                          f"{r.get('baseline', 'd03e093')} | {b['steps_per_s']:.1f} | "
                          f"{a['steps_per_s']:.1f} | {r['speedup']:.2f}× | {b['peak_rss_gb']:.2f} | "
                          f"{a['peak_rss_gb']:.2f} |")  # fmt: skip
-        lines.append("")
+        lines += ["", "One run's after/before moves by about ±10% on this machine: the camera IDM's 2,000-frame row "
+                  "read 10.5 steps/s at 4dd0cab and 12.9 at 80d3887 with the same training code; 300 steps of each, "
+                  "alternating (`benchmarks/measure/speed.py`'s `train`), gave 11.9 and 11.2 at 80d3887 against 11.9 "
+                  "and 11.6 at fda618c. The camera IDM trained alone (`--policy.idm_only=true`) trains no policy "
+                  "model: the baseline, which has no such flag, trains its own.", ""]  # fmt: skip
     if "maze" in results:
         lines += ["## The 64×64 path", "", commands_of(results, "maze"), "",
                   "| data | steps | before steps/s | after steps/s | speedup | before relabel frames/s | "
