@@ -9,12 +9,13 @@ import shutil
 
 import numpy as np
 import pytest
+import torch
 from conftest import BIN, CHECKPOINT, once, run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from safetensors.torch import load_file
 
-from lerobot_iupe.data.readers import label_spans, window_indices
+from lerobot_iupe.data.readers import label_spans, span_windows, window_indices
 from lerobot_iupe.hub import build_card
 from lerobot_iupe.policy import IUPEConfig
 from lerobot_iupe.policy.algorithm import r_squared
@@ -131,6 +132,22 @@ def test_window_indices_clamp_into_the_episode():
     t = np.array([10, 11, 14])
     index = window_indices(t, [-1, 0, 1, 2], first=np.full(3, 10), last=np.full(3, 14))
     np.testing.assert_array_equal(index, [[10, 10, 11, 12], [10, 11, 12, 13], [13, 14, 14, 14]])
+
+
+@pytest.mark.parametrize("offsets", [[-1, 0, 1, 2], [0, 1], [-3, -2, -1, 0, 1, 2, 3, 4]])
+def test_span_windows_are_the_windows_of_clamped_indices_without_copying_inner_spans(offsets):
+    bounds = [(0, 3), (3, 40)]
+    frames = torch.arange(40 * 6, dtype=torch.float32).reshape(40, 2, 3)  # every value names its frame
+    for span in label_spans(bounds, batch_size=7, offsets=offsets):
+        t = np.arange(span.start, span.stop)
+        index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last))
+        part = frames[span.lo : span.hi + 1]
+        windows = span_windows(part, span, offsets)
+        assert torch.equal(windows, part[torch.as_tensor(index - span.lo)])
+        if span.start + offsets[0] >= span.first and span.stop - 1 + offsets[-1] <= span.last:
+            assert windows.data_ptr() == part[span.start + offsets[0] - span.lo].data_ptr()  # a view of the frames
+    with pytest.raises(ValueError, match="consecutive offsets"):
+        span_windows(frames, label_spans(bounds, 7, [0, 2])[0], [0, 2])
 
 
 def test_label_spans_cover_every_frame_with_a_successor_once_and_load_the_window():

@@ -18,7 +18,7 @@ from lerobot.datasets import LeRobotDatasetMetadata
 from tqdm.auto import tqdm
 
 from lerobot_iupe.data.child_processes import exit_with_parent
-from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, window_indices
+from lerobot_iupe.data.readers import FrameReader, LabelSpan, episode_bounds, span_windows
 from lerobot_iupe.policy import IUPEPolicy
 
 # Windows per IDM forward pass, whatever --batch_size (the decoding span) is: an image IDM's activations and
@@ -38,12 +38,8 @@ def span_outputs(
 ) -> torch.Tensor:
     """The IDM's outputs (float32, on the CPU) for the frames of ``span``, whose decoded keys are ``parts``, with
     the references after them when ``references`` (``labelling_pass``)."""
-    frames = reader.layout.join(parts)
-    t = np.arange(span.start, span.stop)
-    index = window_indices(t, policy.config.idm_window, np.full(len(t), span.first), np.full(len(t), span.last))
-    frames = frames.to(device)  # windows gathered pass by pass: a span's all at once were 4× its frames
-    passes = torch.as_tensor(index - span.lo, device=device).split(IDM_BATCH)
-    return torch.cat([labelling_pass(policy, frames[part], references) for part in passes])
+    windows = span_windows(reader.layout.join(parts).to(device), span, policy.config.idm_window)
+    return torch.cat([labelling_pass(policy, window, references) for window in windows.split(IDM_BATCH)])
 
 
 def labelling_pass(policy: IUPEPolicy, window: torch.Tensor, references: bool = True) -> torch.Tensor:
