@@ -214,8 +214,8 @@ def window_indices(t: np.ndarray, offsets: list[int], first: np.ndarray, last: n
 def span_windows(frames: Tensor, span: LabelSpan, offsets: list[int]) -> Tensor:
     """The windows (T, F, …) of ``span``'s frames t at consecutive ``offsets``, from its frames ``lo … hi``
     (``frames``, (n, …)), edges clamped as ``window_indices`` clamps them: a strided view of one copy of the frames
-    (none away from the episode's edges), where gathering each window's frames wrote every frame F times (29% of a
-    two-camera IDM's labelling)."""
+    (none away from the episode's edges). Gathering each window's frames wrote every frame F times: the IDM's passes
+    on two 640×480 cameras took 14–24% longer (benchmarks/measure/span_windows.py)."""
     if list(offsets) != list(range(offsets[0], offsets[0] + len(offsets))):
         raise ValueError(f"span_windows reads consecutive offsets, got {offsets}")
     rows = np.clip(np.arange(span.start + offsets[0], span.stop + offsets[-1]), span.first, span.last) - span.lo
