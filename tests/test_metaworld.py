@@ -184,3 +184,27 @@ def test_the_env_names_a_wrong_task_for_lerobot_eval_too():
 
     with pytest.raises(ValueError, match="--env.task: 'metaworld-push-v2' is not a Meta-World task"):
         MetaWorldStateEnv(task="metaworld-push-v2")
+
+
+def test_object_moves_carry_the_object_with_the_gripper_closed_and_hand_only_play_never_does():
+    """``--env.play_object_moves``: play grasps pick-place's puck and lifts it with the gripper closed, which the
+    hand-only play of the same episodes never does."""
+
+    def lifted_steps(object_moves: float) -> int:
+        env = MetaWorldStateEnvConfig(task="pick-place-v3", play_object_moves=object_moves).make()
+        play, lifted = make_agent("metaworld_state", "play"), 0
+        for seed in (0, 1):
+            observation, _ = env.reset(seed=seed)
+            table = observation["environment_state"][6]
+            for _ in range(400):
+                action = play(env, observation)
+                observation, _, terminated, truncated, _ = env.step(action)
+                lifted += bool(observation["environment_state"][6] > table + 0.02 and action[3] > 0)
+                if terminated or truncated:
+                    break
+        env.close()
+        return lifted
+
+    assert lifted_steps(0.5) > 50 and lifted_steps(0.0) == 0
+    with pytest.raises(ValueError, match="--env.play_object_moves"):
+        MetaWorldStateEnvConfig(task="reach-v3", play_object_moves=-0.1).validate()

@@ -153,7 +153,8 @@ def render(out: Path) -> str:
             "",
             "Diffusion (`--policy diffusion`) is LeRobot's Diffusion Policy with its defaults (2 observations, a "
             "64-action horizon of which it plays 32 open loop, DDPM with 100 steps, learning rate 1e-4 with warm-up "
-            "and cosine decay) and a U-Net of widths 128, 256, 512 instead of 512, 1024, 2048, sized for a CPU. "
+            "and cosine decay) and a U-Net of widths 64, 128, 256 instead of 512, 1024, 2048, sized for a CPU; its "
+            "training-fit column reads every 30th training frame. "
             "*Commit*: the code that labelled and trained the row (– for rows from before it was recorded). "
             "*Training s* and *evaluation s*: one run's wall seconds, mean over seeds, with `--jobs` runs sharing the "
             "machine's cores (– where a row does not record them).",

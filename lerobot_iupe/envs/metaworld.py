@@ -35,6 +35,11 @@ PLAY_GRASP_HOLD = (5, 30)  # steps a gripper command is held
 # steer toward a target never do that, and an IDM trained on them alone labels the expert's approach short
 # (button-press-topdown's y: R² -0.99 without held moves, 0.43 with half of them; benchmarks/cycle_play.md).
 PLAY_HELD_STEPS = (10, 40)
+# An object move (share ``play_object_moves``): over the first object, down to it, the gripper closed on it for 8-15
+# steps, then carried closed to a random point. A hand-only play never closes the fingers on an object, so an IDM
+# trained on it cannot tell a grasp that holds a puck from none (pick-place's grasp R² below 0; trailing_tasks.md).
+PLAY_OBJECT_ABOVE, PLAY_OBJECT_LOW = 0.1, (0.0, 0.04)
+PLAY_OBJECT_CLOSE_STEPS = (8, 15)
 # Meta-World draws its task list from NumPy's global generator (seeding it, then restoring it): two threads building
 # envs at once drew interleaved values ("Only generated 49 unique goals, not 50").
 _BUILDING = threading.Lock()
@@ -47,9 +52,9 @@ class MetaWorldStateEnv(MetaworldEnv):
     ``environment_state`` (Meta-World's 39 values: hand, gripper, two objects' position and quaternion, the same
     18 of the previous frame, goal). Nothing is rendered."""
 
-    def __init__(self, task: str = "push-v3", play_held_moves: float = 0.5):
+    def __init__(self, task: str = "push-v3", play_held_moves: float = 0.5, play_object_moves: float = 0.0):
         check_metaworld_task(task)  # LeRobot's class raises a bare KeyError
-        self.play_held_moves = play_held_moves
+        self.play_held_moves, self.play_object_moves = play_held_moves, play_object_moves
         # LeRobot's class refuses obs_type="state" and renders for the pixel types: its pixel type is named here
         # only to construct it, and _format_raw_obs below never renders.
         super().__init__(task=task, obs_type="pixels_agent_pos")
@@ -102,14 +107,21 @@ class MetaWorldStateEnv(MetaworldEnv):
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
     def play_action(self) -> np.ndarray:
-        """Goal-agnostic play: a share ``play_held_moves`` of the moves hold one random hand command for 10-40
-        steps; the others travel to random targets in the working box at a random speed, or pause where the hand
-        is. The gripper is opened or closed at random and held for 5-30 steps. It reads the hand only, never the
-        objects or the goal."""
+        """Goal-agnostic play: a share ``play_object_moves`` of the moves grasp the first object and carry it to a
+        random point; a share ``play_held_moves`` of the others hold one random hand command for 10-40 steps; the
+        rest travel to random targets in the working box at a random speed, or pause where the hand is. Outside an
+        object move the gripper is opened or closed at random and held for 5-30 steps. It never reads the goal, and
+        reads the objects only in object moves."""
         rng, play, hand = self.np_random, self._play, self._observation[:3]
+        if play.get("legs"):
+            return self._object_leg_action(rng, play, hand)
         moving = play.get("speed", 0.0) > 0
         reached = moving and np.linalg.norm(play["target"] - hand) < 0.01
         if not play or play["steps"] >= play["max_steps"] or reached:
+            if self.play_object_moves and rng.random() < self.play_object_moves:
+                play.update(legs=self._object_legs(rng), held=None, speed=0.0, steps=0, max_steps=0)
+                play.setdefault("grasp", -1.0)
+                return self._object_leg_action(rng, play, hand)
             if self.play_held_moves and rng.random() < self.play_held_moves:
                 at_bound = rng.random(3) < 0.5
                 command = np.where(at_bound, rng.choice([-1.0, 1.0], 3), rng.uniform(-1.0, 1.0, 3))
@@ -134,3 +146,37 @@ class MetaWorldStateEnv(MetaworldEnv):
             move = np.clip(10.0 * (play["target"] - hand), -1.0, 1.0) * play["speed"]  # the experts' gain, p=10
             move = np.clip(move + rng.normal(0.0, 0.1 if play["speed"] else 0.02, 3), -1.0, 1.0)
         return np.asarray([*move, play["grasp"]], dtype=np.float32)
+
+    def _object_legs(self, rng: np.random.Generator) -> list[dict]:
+        """An object move's legs, each a target the hand steers to (until reached, or for a fixed time) and the
+        gripper command held meanwhile."""
+        obj = self._observation[4:7]
+        above = obj + np.array([*rng.uniform(-0.01, 0.01, 2), PLAY_OBJECT_ABOVE])
+        low = obj + np.array([*rng.uniform(-0.005, 0.005, 2), rng.uniform(*PLAY_OBJECT_LOW)])
+        close_steps = int(rng.integers(*PLAY_OBJECT_CLOSE_STEPS, endpoint=True))
+        carry_to, carry_speed = rng.uniform(PLAY_LOW, PLAY_HIGH), float(rng.uniform(0.3, 1.0))
+        steps = PLAY_MAX_STEPS_PER_TARGET
+        return [
+            _leg(above, grasp=-1.0, speed=1.0, max_steps=steps, until_reached=True),
+            _leg(low, grasp=-1.0, speed=0.5, max_steps=steps, until_reached=True),
+            _leg(low, grasp=1.0, speed=0.5, max_steps=close_steps, until_reached=False),
+            _leg(carry_to, grasp=1.0, speed=carry_speed, max_steps=steps, until_reached=True),
+        ]
+
+    def _object_leg_action(self, rng: np.random.Generator, play: dict, hand: np.ndarray) -> np.ndarray:
+        """The current leg's step (the experts' gain, p = 10); after the last leg the next call chooses a new move
+        and a new gripper command."""
+        legs = play["legs"]
+        leg = legs[0]
+        move = np.clip(10.0 * (leg["target"] - hand), -1.0, 1.0) * leg["speed"]
+        move = np.clip(move + rng.normal(0.0, 0.02, 3), -1.0, 1.0)
+        leg["max_steps"] -= 1
+        if leg["max_steps"] <= 0 or (leg["until_reached"] and np.linalg.norm(leg["target"] - hand) < 0.01):
+            legs.pop(0)
+        if not legs:
+            play.update(steps=0, max_steps=0, hold=0)
+        return np.asarray([*move, leg["grasp"]], dtype=np.float32)
+
+
+def _leg(target: np.ndarray, grasp: float, speed: float, max_steps: int, until_reached: bool) -> dict:
+    return {"target": target, "grasp": grasp, "speed": speed, "max_steps": max_steps, "until_reached": until_reached}

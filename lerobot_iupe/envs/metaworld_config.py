@@ -58,6 +58,9 @@ class MetaWorldStateEnvConfig(ClassicEnvConfig):
     # Share of the play agent's moves (--agent=play) that hold one hand command for 10-40 steps, as the scripted
     # experts hold theirs; 0 is the play of the first Meta-World results (targets and pauses only).
     play_held_moves: float = 0.5
+    # Share of play's moves that grasp the first object and carry it to a random point (the goal is never read);
+    # 0 is play that reads the hand only.
+    play_object_moves: float = 0.0
     STATE_NAMES: ClassVar[dict[str, tuple[str, ...]]] = {
         "agent_pos": ("hand.x", "hand.y", "hand.z", "gripper.opening"),
         "environment_state": (
@@ -80,7 +83,10 @@ class MetaWorldStateEnvConfig(ClassicEnvConfig):
 
     @property
     def gym_kwargs(self) -> dict:
-        return {**super().gym_kwargs, "task": self.task, "play_held_moves": self.play_held_moves}
+        return {
+            **super().gym_kwargs, "task": self.task, "play_held_moves": self.play_held_moves,
+            "play_object_moves": self.play_object_moves,
+        }  # fmt: skip
 
     def validate(self) -> None:
         check_metaworld_task(self.task)
@@ -88,6 +94,13 @@ class MetaWorldStateEnvConfig(ClassicEnvConfig):
             raise ValueError(f"--env.episode_length must be between 1 and Meta-World's 500, got {self.episode_length}")
         if not 0.0 <= self.play_held_moves <= 1.0:
             raise ValueError(f"--env.play_held_moves is a share of play's moves, in [0, 1]; got {self.play_held_moves}")
+        if not 0.0 <= self.play_object_moves <= 1.0:
+            raise ValueError(
+                f"--env.play_object_moves is a share of play's moves, in [0, 1]; got {self.play_object_moves}"
+            )
 
     def settings(self) -> dict:
-        return {**super().settings(), "task": self.task, "play_held_moves": self.play_held_moves}
+        settings = {**super().settings(), "task": self.task, "play_held_moves": self.play_held_moves}
+        if self.play_object_moves:  # absent at 0: the settings (and data folders) of hand-only play stay as they were
+            settings["play_object_moves"] = self.play_object_moves
+        return settings
