@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-MEASURABLE = 0.1  # (a)'s success rate below which the ratio (b) / (a) says nothing
+# (a)'s success rate below which the ratio (b) / (a) is no result: a policy that fails most episodes on the true
+# actions has not learned the task, so labels cannot be judged by it (the target asks for true arms of 0.5 or more)
+MEASURABLE = 0.5
 
 
 def load(out: Path) -> dict:
@@ -188,10 +190,9 @@ def render(out: Path) -> str:
                 continue
             a = summary[(env, *setting, "true")]
             ratio = b / a if a > 0 else float("nan")
-            # a ratio of two rates near zero is noise, not a result
             met = "met" if ratio >= 0.9 else "missed"
             if a < MEASURABLE:
-                met = f"not measurable: (a) is below {MEASURABLE} (no success on the true actions)"
+                met = f"no pair: (a) is below {MEASURABLE} (the policy did not learn the task from the true actions)"
             lines.append(f"| {env} | {' | '.join(map(str, setting))} | {arm} | {_f(ratio)} | {met} |")
         lines.append("")
     if data.get("downstream_findings"):
