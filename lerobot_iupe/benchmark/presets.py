@@ -246,7 +246,8 @@ CONTINUOUS = {
 METAWORLD_POLICY = {"rollout_episodes": "10", "selection_episodes": "10"}
 # Half of play's moves hold one command for 10-40 steps, as the scripted experts do: the cycle's first IDM then
 # labels button-press-topdown's y at R² 0.43 instead of -0.99 (benchmarks/cycle_play.md), and IUPE's success there
-# rose from 3 to 94 % (benchmarks/metaworld/results.md).
+# rose from 3 to 94 % (benchmarks/metaworld/results.md). Play that also grasps the object (play_object_moves 0.25)
+# lifts pick-place but lowers reach and peg-insert-side over six seeds (benchmarks/metaworld/trailing_tasks.md).
 METAWORLD_PLAY = {"play_held_moves": 0.5}
 METAWORLD_LABELLING = {"idm_context": "3", "idm_observation_keys": "[observation.state]"}
 METAWORLD = {
