@@ -21,7 +21,14 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION
 from tqdm.auto import tqdm
 
-from lerobot_iupe.data.storage import WrittenDataset, dataset_lock, resolve_root, staged_directory, write_iupe_meta
+from lerobot_iupe.data.storage import (
+    WrittenDataset,
+    dataset_lock,
+    no_image_embedding_without_images,
+    resolve_root,
+    staged_directory,
+    write_iupe_meta,
+)
 from lerobot_iupe.envs.configs import IUPEEnvConfig, action_names, env_observation
 from lerobot_iupe.envs.rollout import Episode, agent_act, run_episodes
 from lerobot_iupe.experts import AGENTS, make_agent
@@ -177,7 +184,8 @@ def collect(cfg: CollectConfig) -> tuple[Path, dict]:
             use_videos=cfg.env.has_cameras and cfg.video,
         )
         try:
-            stats = record_episodes(dataset, cfg)
+            with no_image_embedding_without_images():
+                stats = record_episodes(dataset, cfg)
         finally:
             dataset.finalize()
         shutil.rmtree(staged / "images", ignore_errors=True)  # frame scratch space, empty once videos are encoded

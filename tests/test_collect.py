@@ -1,3 +1,5 @@
+import contextlib
+import dataclasses
 import json
 
 import numpy as np
@@ -73,6 +75,30 @@ def test_keep_actions_stores_expert_actions(data_dir):
     actions = np.array([int(dataset[i]["action"]) for i in range(20)])
     expected = (states @ np.array([0.1, 0.5, 10.0, 1.0]) > 0).astype(int)
     assert np.array_equal(actions, expected)
+
+
+def test_skipping_lerobots_image_embedding_writes_the_same_rows_and_restores_it(tmp_path, monkeypatch):
+    """The writer's row-by-row image map is skipped where no column holds an image: the same parquet rows as
+    LeRobot's own writer (the PNG maze test above checks that images are still embedded)."""
+    import pyarrow.parquet as pq
+    from lerobot.datasets import dataset_writer
+
+    embed_images, calls = dataset_writer.embed_images, []
+
+    def counted(dataset):
+        calls.append(len(dataset))
+        return embed_images(dataset)
+
+    monkeypatch.setattr(dataset_writer, "embed_images", counted)
+    lerobots = CollectConfig(env=CartPoleEnvConfig(), dataset=DatasetTarget("local/x", str(tmp_path / "a")), episodes=3)
+    with monkeypatch.context() as patch:
+        patch.setattr(collect_module, "no_image_embedding_without_images", contextlib.nullcontext)
+        collect(lerobots)
+    assert len(calls) == 3  # LeRobot's map ran once per episode
+    collect(dataclasses.replace(lerobots, dataset=DatasetTarget("local/x", str(tmp_path / "b"))))
+    assert len(calls) == 3 and dataset_writer.embed_images is counted  # skipped, then LeRobot's put back
+    tables = [pq.read_table(tmp_path / name / "data/chunk-000/file-000.parquet") for name in "ab"]
+    assert tables[0].num_rows > 3 and tables[0].equals(tables[1])
 
 
 @pytest.mark.parametrize(

@@ -23,6 +23,7 @@ from lerobot_iupe.data.arm_recording import (
     teleoperated_episode,
 )
 from lerobot_iupe.data.hand_guided_arm import VELOCITY_ARM, drawn_pose, hand_guided_episode, wrist_view
+from lerobot_iupe.data.storage import no_image_embedding_without_images
 
 BODIES = {body.name: body for body in (SO101, SO101_MISCALIBRATED, OTHER_LEADER, HUMANOID, VELOCITY_ARM)}
 
@@ -109,6 +110,7 @@ def write_arm_recording(
                 frame["action"] = target
             _wait_for_encoder(dataset)
             dataset.add_frame({**frame, "task": "move the arm"})
-        dataset.save_episode()
+        with no_image_embedding_without_images():
+            dataset.save_episode()
     dataset.finalize()
     return dataset

@@ -195,3 +195,25 @@ def dataset_lock(root: Path) -> Iterator[None]:
     finally:
         os.unlink(path)  # while still held, so that no other process can lock this inode and then see it gone
         os.close(fd)
+
+
+@contextmanager
+def no_image_embedding_without_images() -> Iterator[None]:
+    """LeRobot's writer (``save_episode``) runs ``embed_images``, a row-by-row ``datasets`` map, on every episode even
+    where no column holds an image (videos are not columns): half the time of recording CartPole's episodes, whose
+    rows it leaves as they are. Within this block that map is skipped where no feature needs it; the parquet rows
+    written are the same (tests/test_collect.py)."""
+    from datasets.features.features import require_storage_embed
+    from lerobot.datasets import dataset_writer
+
+    embed_images = dataset_writer.embed_images
+
+    def embed_only_images(dataset):
+        needed = any(require_storage_embed(feature) for feature in dataset.features.values())
+        return embed_images(dataset) if needed else dataset
+
+    dataset_writer.embed_images = embed_only_images
+    try:
+        yield
+    finally:
+        dataset_writer.embed_images = embed_images
