@@ -243,3 +243,16 @@ def still_alive_after(pids: list[int], seconds: float) -> list[int]:
     for pid in alive:
         os.kill(pid, signal.SIGKILL)
     return alive
+
+
+# The longest tests (about a minute each on 2 cores) start first, so that the two xdist workers end together
+# instead of one running a long test alone at the end.
+LONGEST_FIRST = (
+    "test_docs.py::test_workflows_1_and_3_run_as_printed",
+    "test_docs.py::test_workflow_2_runs_as_printed",
+    "test_benchmark.py::test_quick_benchmark_writes_records_tables_and_plots",
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: not item.nodeid.endswith(LONGEST_FIRST))
