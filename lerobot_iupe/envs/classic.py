@@ -15,8 +15,9 @@ import numpy as np
 from gymnasium.envs.classic_control import AcrobotEnv, CartPoleEnv, MountainCarEnv
 
 CARTPOLE_SUCCESS_STEPS = 195
-# lerobot-eval holds every rendered frame of a batch in memory (up to 10 episodes × 500 steps): at gymnasium's
-# 600×400 the README's CartPole evaluation peaked at 8.9 GB. Half size keeps the drawing and needs a quarter of that.
+# lerobot-eval holds every rendered frame of a batch in memory (up to 10 episodes × their steps): at gymnasium's
+# 600×400 the README's CartPole evaluation peaked at 8.9 GB (LunarLander's 1,000 steps would hold 7.2 GB of frames).
+# Half size keeps the drawing and needs a quarter of that.
 RENDER_SCALE = 0.5
 
 
@@ -29,7 +30,20 @@ def action_to_index(action: Any, n_actions: int) -> int:
     return index
 
 
-class ClassicControlEnv(gym.Wrapper):
+class ScaledRendering:
+    """``render()`` of a wrapped gymnasium env at ``RENDER_SCALE`` of its size, area-averaged so that its 1-pixel
+    lines stay (CartPole's track, Acrobot's goal line)."""
+
+    def render(self) -> np.ndarray | None:
+        frame = self.env.render()
+        if frame is None:
+            return None
+        height, width = frame.shape[:2]
+        size = (round(width * RENDER_SCALE), round(height * RENDER_SCALE))
+        return cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
+
+
+class ClassicControlEnv(ScaledRendering, gym.Wrapper):
     """Dict-observation wrapper with the paper's goal criterion as ``info["is_success"]``."""
 
     TASKS = {
@@ -67,12 +81,3 @@ class ClassicControlEnv(gym.Wrapper):
             self._success |= bool(terminated)
         info["is_success"] = self._success
         return {"agent_pos": np.asarray(obs, dtype=np.float32)}, float(reward), terminated, truncated, info
-
-    def render(self) -> np.ndarray | None:
-        """Gymnasium's drawing at ``RENDER_SCALE`` of its size, area-averaged so that its 1-pixel lines stay."""
-        frame = self.env.render()
-        if frame is None:
-            return None
-        height, width = frame.shape[:2]
-        size = (round(width * RENDER_SCALE), round(height * RENDER_SCALE))
-        return cv2.resize(frame, size, interpolation=cv2.INTER_AREA)

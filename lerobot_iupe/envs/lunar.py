@@ -21,11 +21,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.envs.box2d.lunar_lander import LunarLander, heuristic
 
+from lerobot_iupe.envs.classic import ScaledRendering
+
 PAD_HALF_WIDTH = 0.2  # the flags stand at x = ±0.2 in the observation's units
 STILL_SPEED = 0.1  # |vx|, |vy| below this (observation units) count as standing still
 
 
-class LunarLanderEnv(gym.Wrapper):
+class LunarLanderEnv(ScaledRendering, gym.Wrapper):
     """Dict observation ``agent_pos`` (6) + ``environment_state`` (2), a safe landing as ``info["is_success"]`` and
     standing on the pad as ``info["goal_reached"]``."""
 
