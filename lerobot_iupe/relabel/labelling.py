@@ -213,22 +213,27 @@ def label_spans_with_idm(
     return {episode: tuple(np.concatenate(part) for part in parts) for episode, parts in results.items()}
 
 
+def in_frame_order(per_episode: dict[int, tuple], bounds: list[tuple[int, int]], item: int, out: np.ndarray):
+    """``out`` (one row per frame from ``bounds``' first) with item ``item`` of each labelled episode's tuple written
+    at the episode's frames that have a successor (the last one has no window); other rows are left as they are."""
+    base = bounds[0][0] if bounds else 0
+    for episode, (first, end) in enumerate(bounds):
+        if episode in per_episode:
+            rows = out[first - base : end - 1 - base]
+            rows[...] = per_episode[episode][item].reshape(rows.shape)
+    return out
+
+
 def assemble_labels(
     per_episode: dict[int, tuple[np.ndarray, np.ndarray]], bounds: list[tuple[int, int]], config
 ) -> tuple[np.ndarray, np.ndarray]:
     """One label per frame of the dataset, in frame order (the last frame of an episode: ``LAST_FRAME_RULE``)."""
-    total = bounds[-1][1] if bounds else 0
+    frames = (bounds[-1][1] - bounds[0][0]) if bounds else 0
+    shape = (frames, config.action_dim) if config.is_continuous else (frames,)
+    labels = in_frame_order(per_episode, bounds, 0, np.zeros(shape, np.float32 if config.is_continuous else np.int64))
+    confidence = in_frame_order(per_episode, bounds, 1, np.zeros(shape, np.float32))
     base = bounds[0][0] if bounds else 0
-    if config.is_continuous:
-        labels = np.zeros((total - base, config.action_dim), dtype=np.float32)
-    else:
-        labels = np.zeros(total - base, dtype=np.int64)
-    confidence = np.zeros((total - base, *labels.shape[1:]), dtype=np.float32)
-    for episode, (first, end) in enumerate(bounds):
-        if episode in per_episode:
-            episode_labels, episode_confidence = per_episode[episode][:2]
-            labels[first - base : end - 1 - base] = episode_labels.reshape(labels[first - base : end - 1 - base].shape)
-            confidence[first - base : end - 1 - base] = episode_confidence
+    for first, end in bounds:
         if end - first > 1:
             labels[end - 1 - base] = labels[end - 2 - base]
             confidence[end - 1 - base] = confidence[end - 2 - base]
@@ -241,12 +246,8 @@ def assemble_references(per_episode: dict[int, tuple], bounds: list[tuple[int, i
     widths = {parts[2].shape[-1] for parts in per_episode.values()}
     if not widths or widths == {0}:
         return None
-    base, total = bounds[0][0], bounds[-1][1]
-    references = np.full((total - base, max(widths)), np.nan, dtype=np.float32)
-    for episode, (first, end) in enumerate(bounds):
-        if episode in per_episode:
-            references[first - base : end - 1 - base] = per_episode[episode][2]
-    return references
+    frames = bounds[-1][1] - bounds[0][0]
+    return in_frame_order(per_episode, bounds, 2, np.full((frames, max(widths)), np.nan, dtype=np.float32))
 
 
 def last_frame_mask(meta: LeRobotDatasetMetadata, total_frames: int) -> np.ndarray:
