@@ -39,7 +39,7 @@ from lerobot_iupe.policy.algorithm import r_squared
 
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import render, update  # noqa: E402
-from steps import command_line, parse_with_folders, run, train_once  # noqa: E402
+from steps import command_line, extend_once, parse_with_folders, run, train_once  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
 ENVS = {  # name -> (expert episodes, IDM steps, ACT steps)
@@ -100,6 +100,24 @@ COMMON = ["--env_eval_freq=0", "--log_freq=500"]  # beside steps.TRAIN_FLAGS
 
 def train(dataset: Path, out: Path, steps: int, seed: int, flags: list[str]) -> Path:
     return train_once(dataset, out, *flags, *COMMON, f"--seed={seed}", steps=steps)
+
+
+def shorter_steps(run: Path | None) -> int | None:
+    return None if run is None else int(run.name.rsplit("-", 1)[1])
+
+
+def shorter_run(work: Path, name: str, steps: int) -> Path | None:
+    """The finished run of the arm ``name`` (``<arm>-<act>-<steps>``) with the most steps below ``steps``, which a
+    longer budget resumes from (``steps.extend_once``); None where there is none."""
+    stem, _, wanted = name.rpartition("-")
+    if not wanted.isdigit():
+        return None
+    finished = [
+        run for run in work.glob(f"{stem}-*")
+        if run.name.rsplit("-", 1)[1].isdigit() and int(run.name.rsplit("-", 1)[1]) < steps
+        and (run / CHECKPOINT).exists()
+    ]  # fmt: skip
+    return max(finished, key=shorter_steps, default=None)
 
 
 def training_fit(checkpoint: Path, dataset: Path, every: int = 3) -> list[float]:
@@ -210,6 +228,8 @@ def measure(
     datasets = {"true": truth, "idm": relabelled}
     runs = [(labels, datasets[labels], seed) for labels in arms for seed in seeds]
 
+    resumed_from: dict[str, int | None] = {}
+
     def train_arm(run) -> tuple[Path, float | None]:
         labels, dataset, seed = run
         start = time.perf_counter()
@@ -218,7 +238,13 @@ def measure(
         if (policy, act, act_steps) != ("act", DEFAULT_ACT, default_act_steps):
             name += f"-{act}-{act_steps}"
         reused = (work / name / CHECKPOINT).exists()
-        checkpoint = train(dataset, work / name, act_steps, seed, POLICY_SETTINGS[policy][act])
+        shorter = None if reused else shorter_run(work, name, act_steps)
+        if shorter is not None:
+            print(f"{name}: resumed from {shorter.name}", flush=True)
+            checkpoint = extend_once(shorter, work / name, act_steps)
+        else:
+            checkpoint = train(dataset, work / name, act_steps, seed, POLICY_SETTINGS[policy][act])
+        resumed_from[name] = shorter_steps(shorter)
         return checkpoint, None if reused else time.perf_counter() - start  # a reused run's time is not known
 
     with ThreadPoolExecutor(jobs) as pool:
@@ -238,6 +264,8 @@ def measure(
                 "seed": seed,
                 "success_rate": result["pc_success"] / 100.0, "avg_sum_reward": result["avg_sum_reward"],
                 "episodes": episodes_eval, "act": act, "act_steps": act_steps, "train_s": train_s,
+                # train_s then counts only the steps after those of the run it resumed
+                "resumed_from_steps": resumed_from.get(checkpoint.parents[2].name),
                 "eval_s": eval_s,
                 "training_fit_r2_per_dim": fit,
             }

@@ -17,8 +17,8 @@ from lerobot_iupe.benchmark.runner import BIN, CHECKPOINT
 TRAIN_FLAGS = ("--num_workers=0", "--policy.device=cpu", "--policy.push_to_hub=false", "--wandb.enable=false")
 
 __all__ = [
-    "BIN", "CHECKPOINT", "TRAIN_FLAGS", "command_line", "dry_run", "parse_with_folders", "run", "train_once",
-    "write_page",
+    "BIN", "CHECKPOINT", "TRAIN_FLAGS", "command_line", "dry_run", "extend_once", "parse_with_folders", "run",
+    "train_once", "write_page",
 ]  # fmt: skip
 
 
@@ -48,6 +48,21 @@ def train_once(dataset: Path, out: Path, *flags: str, steps: int, threads: int |
         run(
             "lerobot-train", *flags, *shared, f"--dataset.repo_id=local/{dataset.name}",
             f"--dataset.root={dataset}", f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}",
+            threads=threads, log=out.parent / f"{out.name}.log",
+        )  # fmt: skip
+    return out / CHECKPOINT
+
+
+def extend_once(shorter: Path, out: Path, steps: int, threads: int | None = 1) -> Path:
+    """The finished run ``shorter`` copied to ``out`` and trained on to ``steps`` with ``lerobot-train --resume=true``
+    (LeRobot restores the optimizer, the schedule and the data order), so that a longer budget reuses a shorter one's
+    steps; skipped when ``out`` already holds the checkpoint. Returns the checkpoint."""
+    if not (out / CHECKPOINT).exists():
+        shutil.rmtree(out, ignore_errors=True)
+        shutil.copytree(shorter, out, symlinks=True)
+        run(
+            "lerobot-train", f"--config_path={out / CHECKPOINT / 'train_config.json'}", "--resume=true",
+            f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}",
             threads=threads, log=out.parent / f"{out.name}.log",
         )  # fmt: skip
     return out / CHECKPOINT
