@@ -198,7 +198,7 @@ def test_a_supervised_linear_part_reads_the_vector_columns_without_a_camera_fram
     windows."""
     from lerobot_iupe.data.readers import ExpertFrames
     from lerobot_iupe.policy.joint_fit import labelled_rows
-    from lerobot_iupe.policy.linear_prior import LinearPrior, fit_on_expert
+    from lerobot_iupe.policy.linear_prior import LinearPrior, expert_features
 
     root = tmp_path / "three-views"
     write_three_views(root, episodes=3, seed=4, with_actions=True)
@@ -208,13 +208,18 @@ def test_a_supervised_linear_part_reads_the_vector_columns_without_a_camera_fram
     rows = labelled_rows(expert.episodes)
     joined = expert.windows(rows, offsets)
     np.testing.assert_array_equal(expert.column_windows(rows, offsets, vector_columns), joined[:, :, vector_columns])
+    reversed_columns = vector_columns[::-1]  # any order of columns, as asked
+    np.testing.assert_array_equal(
+        expert.column_windows(rows, offsets, reversed_columns), joined[:, :, reversed_columns]
+    )
+    torch.testing.assert_close(expert.vector_windows(OBS_STATE, rows, offsets), joined[:, :, vector_columns])
     with pytest.raises(ValueError, match="camera"):
         expert.column_windows(rows, offsets, [0])
 
     joined_reads, windows = [], expert.windows
     expert.windows = lambda *args: joined_reads.append(args) or windows(*args)  # the real reader, counted
     prior = LinearPrior(len(offsets), vector_columns, 3)
-    fit_on_expert(prior, expert, offsets, np.ones(3, dtype=bool))
+    prior.fit(*expert_features(prior, expert, offsets), np.ones(3, dtype=bool))
     assert joined_reads == [] and bool(prior.fitted)
     whole = LinearPrior(len(offsets), vector_columns, 3)
     whole.fit(whole.features(joined.numpy()), expert.actions[rows].numpy(), np.ones(3, dtype=bool))

@@ -125,15 +125,18 @@ class FrameTable:
 
     def vector_columns(self, rows: np.ndarray, columns: list[int]) -> np.ndarray:
         """Columns of vector keys of the joined frames of ``rows`` (any shape), float32, shaped ``rows.shape +
-        (len(columns),)``, read without a camera frame."""
+        (len(columns),)``, read without a camera frame: one gather per key."""
         rows = np.asarray(rows, dtype=np.int64)
         starts = np.cumsum([0, *self.layout.sizes])
+        columns = np.asarray(columns, dtype=np.int64)
+        part_of = np.searchsorted(starts, columns, side="right") - 1
         out = np.empty((rows.size, len(columns)), dtype=np.float32)
-        for n, column in enumerate(columns):
-            part = int(np.searchsorted(starts, column, side="right")) - 1
+        for part in np.unique(part_of):
             if self.layout.visual[part]:
+                column = columns[part_of == part][0]
                 raise ValueError(f"column {column} of the joined frames is a camera's, not a vector key's")
-            out[:, n] = self.parts[part][rows.reshape(-1), column - starts[part]]
+            where = np.flatnonzero(part_of == part)
+            out[:, where] = self.parts[part][np.ix_(rows.reshape(-1), columns[where] - starts[part])]
         return out.reshape(*rows.shape, len(columns))
 
     def packed_parts(self, rows: np.ndarray, parts: list[int]) -> Tensor:
@@ -281,9 +284,8 @@ class ExpertFrames:
 
     def vector_windows(self, key: str, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """One vector key's values (B, len(offsets), D) at ``offsets`` around each row, clamped into its episode."""
-        values = self.states.parts[self.keys.index(key)]
-        index = window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])
-        windows = torch.from_numpy(np.ascontiguousarray(values[index]))
+        columns = self.states.layout.indices([self.keys.index(key)])
+        windows = torch.from_numpy(self.column_windows(rows, offsets, columns))
         return windows if self.states.device is None else windows.to(self.states.device)
 
     def transition_windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:

@@ -60,7 +60,7 @@ class LinearPrior(nn.Module):
             if isinstance(values, np.ndarray)
             else torch.cat([start, *others], dim=1)
         )
-        return joined.reshape(len(windows), -1)
+        return joined.reshape(len(windows), joined.shape[1] * joined.shape[2])  # no -1: zero windows have a shape
 
     def forward(self, window: Tensor) -> Tensor:
         return self.features(window).float() @ self.weight + self.bias
@@ -88,16 +88,14 @@ class LinearPrior(nn.Module):
         self.is_fitted = True
 
 
-def fit_on_expert(prior: LinearPrior, expert: ExpertFrames, offsets: list[int], keep: np.ndarray) -> None:
-    """A supervised IDM's linear part, on this run's labelled frames. It reads the vector columns alone: windows of
-    joined frames carry every camera value (4,096 of two 96×128 cameras were 4.8 GB, and 5,000 frames took 3.7 s
-    to read from the frame cache for nothing)."""
+def expert_features(prior: LinearPrior, expert: ExpertFrames, offsets: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    """What a supervised IDM's linear part is fitted on: the features (``LinearPrior.features``) and actions of this
+    run's labelled frames. It reads the vector columns alone: windows of joined frames carry every camera value
+    (4,096 of two 96×128 cameras were 4.8 GB, and 5,000 frames took 3.7 s to read from the frame cache for nothing)."""
     rows = labelled_rows(expert.episodes)
-    if not len(rows):
-        return
     values = expert.column_windows(rows, offsets, prior.columns.cpu().tolist())
     actions = expert.actions[torch.as_tensor(rows, device=expert.actions.device)].cpu().numpy()
-    prior.fit(prior.features(values, selected=True), actions, keep)
+    return prior.features(values, selected=True), actions
 
 
 @torch.no_grad()

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from lerobot_iupe.policy.configuration_iupe import IDM_ONLY_CANNOT_ACT, IUPEConfig
 from lerobot_iupe.policy.joint_idm import JointIDM
-from lerobot_iupe.policy.linear_prior import LinearPrior, fit_on_expert
+from lerobot_iupe.policy.linear_prior import LinearPrior, expert_features
 from lerobot_iupe.policy.networks import CameraIDM, FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
 from lerobot_iupe.policy.threads import acting_threads
 from lerobot_iupe.policy.training import IUPETrainer
@@ -362,8 +362,7 @@ class IUPEPolicy(PreTrainedPolicy):
                 if self.idm_prior is not None and not self.trainer.prior_ready:  # on the first step
                     self.trainer.prior_ready = True
                     if not (self.trainer.resume and self.idm_prior.is_fitted):
-                        keep = ~self.idm_head.binary.cpu().numpy()
-                        fit_on_expert(self.idm_prior, expert, self.config.idm_window, keep)
+                        self.fit_prior(*expert_features(self.idm_prior, expert, self.config.idm_window), fixed=False)
                 window = expert.windows(rows, self.config.idm_window)
                 idm_loss = self.idm_head.loss(self.idm_window_output(window), labels)
             if self.config.idm_only:
