@@ -244,3 +244,20 @@ def test_a_camera_networks_frames_are_read_alone_as_the_whole_join_packs_them(tm
         read = expert.part_windows(rows, offsets, parts)
         assert read.dtype == torch.float32 and read.shape == (len(rows), len(offsets), len(layout.indices(parts)))
         torch.testing.assert_close(read, joined[:, :, layout.indices(parts)], rtol=0, atol=0)
+
+
+def test_cameras_and_state_join_to_the_same_floats_from_tensors_and_from_arrays():
+    """The frames the IDM reads are packed from tensors (decoded frames, the frame cache) or numpy arrays (envs):
+    uint8 pixels become x / 255 in float32, the same bits either way, and vectors are copied as they are."""
+    from lerobot_iupe.data.observation import ObservationLayout
+
+    layout = ObservationLayout(((3, 4, 5), (2,), (1, 4, 5)))
+    rng = np.random.default_rng(0)
+    parts = [rng.integers(0, 256, (7, 3, 4, 5), dtype=np.uint8), rng.normal(size=(7, 2)).astype(np.float32),
+             rng.integers(0, 256, (7, 1, 4, 5), dtype=np.uint8)]  # fmt: skip
+    from_arrays = layout.join(parts)
+    from_tensors = layout.join([torch.from_numpy(part) for part in parts])
+    assert from_tensors.dtype == torch.float32 and from_tensors.shape == (7, 3 * 20 + 2 + 20)
+    np.testing.assert_array_equal(from_tensors.numpy(), from_arrays)
+    np.testing.assert_array_equal(from_arrays[:, :60], parts[0].reshape(7, -1).astype(np.float32) / 255.0)
+    np.testing.assert_array_equal(from_arrays[:, 60:62], parts[1])

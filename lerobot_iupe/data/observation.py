@@ -80,7 +80,9 @@ def pack_tensors(parts: list[Tensor], visual: list[bool] | tuple[bool, ...]) -> 
     for part, is_camera in zip(flat, visual, strict=True):
         columns = out[:, start : start + part.shape[1]]
         if is_camera and part.dtype == torch.uint8:
-            torch.div(part, 255.0, out=columns)
+            # A copy, then an in-place float division: the same values as torch.div(uint8, out=float32), whose
+            # mixed-type loop took 6.5× as long (43.7 against 6.8 ms for 250 frames of 96×128, one thread).
+            columns.copy_(part).div_(255.0)
         else:
             columns.copy_(part)
         start += part.shape[1]
