@@ -11,6 +11,10 @@ so101_relative also gives the block and goal seen from the end effector (`--env.
 metaworld_push (pick_place, peg_insert_side) is Meta-World's push (pick-place, peg-insert-side) observed as state
 (`--env.type=metaworld_state`).
 
+A run with a larger `--steps` than an arm's finished run in `--work` resumes that run (`lerobot-train --resume=true`:
+LeRobot restores the optimizer, the learning-rate schedule and the data order); its row's `resumed_from_steps` says
+from which step, and its training seconds count only the steps after it.
+
 Writes the rows (env, policy, labels, seed, success_rate, …) into benchmarks/relabel.json under "downstream" and
 renders benchmarks/relabel.md. Evaluation is `eval_policy_all`, what `lerobot-eval` runs, without its video
 rendering, on seeds 500000… never used by the data.
