@@ -67,9 +67,14 @@ def _fit(rows: list[dict]) -> str:
 
 
 def _seconds(rows: list[dict], key: str) -> str:
-    """The runs' mean seconds of ``key`` (– where a row does not record it)."""
+    """The runs' mean seconds of ``key`` (– where a row does not record it); training resumed from a shorter run
+    says so, as its seconds count only the steps after that run's."""
     values = [r[key] for r in rows if r.get(key) is not None]
-    return f"{np.mean(values):.0f}" if len(values) == len(rows) else "–"
+    if len(values) != len(rows):
+        return "–"
+    resumed = sorted({r["resumed_from_steps"] for r in rows if r.get("resumed_from_steps")})
+    after = f" (after step {', '.join(map(str, resumed))})" if key == "train_s" and resumed else ""
+    return f"{np.mean(values):.0f}{after}"
 
 
 def _real_cameras(data: dict) -> list[str]:
@@ -159,7 +164,8 @@ def render(out: Path) -> str:
             "training-fit column reads every 30th training frame. "
             "*Commit*: the code that labelled and trained the row (– for rows from before it was recorded). "
             "*Training s* and *evaluation s*: one run's wall seconds, mean over seeds, with `--jobs` runs sharing the "
-            "machine's cores (– where a row does not record them).",
+            "machine's cores (– where a row does not record them); a run resumed from a shorter one of the same arm "
+            "(a larger `--steps`) counts the steps after that one's.",
             "",
             "| env | policy | steps | commit | labels | seeds | success rate per seed | mean ± std | return (mean) "
             "| training-frame R² | training s | evaluation s |",
