@@ -284,8 +284,11 @@ class ExpertFrames:
 
     def vector_windows(self, key: str, rows: np.ndarray, offsets: list[int]) -> Tensor:
         """One vector key's values (B, len(offsets), D) at ``offsets`` around each row, clamped into its episode."""
-        columns = self.states.layout.indices([self.keys.index(key)])
-        windows = torch.from_numpy(self.column_windows(rows, offsets, columns))
+        # A whole key in one fancy index, not through column_windows: a training step's windows, where that path's
+        # bookkeeping took 4x as long (121 against 31 µs for 64 windows of 12 frames × 26 joints).
+        values = self.states.parts[self.keys.index(key)]
+        index = window_indices(rows, offsets, self.first_row[rows], self.last_row[rows])
+        windows = torch.from_numpy(np.ascontiguousarray(values[index]))
         return windows if self.states.device is None else windows.to(self.states.device)
 
     def transition_windows(self, rows: np.ndarray, offsets: list[int]) -> Tensor:
