@@ -210,6 +210,8 @@ def write(out: Path, rows: list[dict], command: str) -> None:
             ratio = mean / np.mean(true[setting]) if true and setting in true else float("nan")
             cells += [", ".join(f"{x:.2f}" for x in row[setting]), f"{mean:.3f}", f"{ratio:.2f}"]
         lines.append("| " + " | ".join(cells) + " |")
+    lines += ["", "Meta-World's labels (push, pick-place, peg-insert-side) replayed through their env, whole episodes "
+              "and single chunks from the recorded state: [replay_labels.md](replay_labels.md)."]  # fmt: skip
     (out / "chunk_labels.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
