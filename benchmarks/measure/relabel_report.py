@@ -72,9 +72,13 @@ def _seconds(rows: list[dict], key: str) -> str:
     values = [r[key] for r in rows if r.get(key) is not None]
     if len(values) != len(rows):
         return "–"
-    resumed = sorted({r["resumed_from_steps"] for r in rows if r.get("resumed_from_steps")})
-    after = f" (after step {', '.join(map(str, resumed))})" if key == "train_s" and resumed else ""
-    return f"{np.mean(values):.0f}{after}"
+    resumed = [r.get("resumed_from_steps") for r in rows]
+    if key != "train_s" or not any(resumed):
+        return f"{np.mean(values):.0f}"
+    if len(set(resumed)) == 1:
+        return f"{np.mean(values):.0f} (after step {resumed[0]})"
+    # runs resumed from different steps (or some from scratch) do not average: each is given
+    return ", ".join(f"{v:.0f}" + (f" (after step {r})" if r else "") for v, r in zip(values, resumed, strict=True))
 
 
 def _real_cameras(data: dict) -> list[str]:
