@@ -44,6 +44,7 @@ def episodes_of(root: Path) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 def replay(env, seed: int, actions: np.ndarray) -> tuple[bool, np.ndarray]:
     """``actions`` played open loop from ``reset(seed=seed)``: success and the hand's positions s_1 … s_T."""
+    # by hand, not envs.rollout.run_episodes: a replay stops when its actions run out, mid-episode for a chunk
     observation, _ = env.reset(seed=seed)
     success, hands = False, []
     for action in actions:
@@ -76,12 +77,13 @@ def measure(env_name: str, work: Path, variant: str) -> dict:
     labels = episodes_of(work / f"{env_name}-idm-{variant}")
     held_out = [e for e in sorted(truth) if e >= ENVS[env_name][0] // 5]
     env = env_config_from_settings(ENV_SETTINGS[env_name]).make()
+    low, high = env.action_space.low, env.action_space.high
     result = {"env": env_name, "labels": variant, "episodes": len(held_out)}
     errors = [labels[e][1][:-1] - truth[e][1][:-1] for e in held_out]  # the last frame has no step
     rms = np.sqrt(np.mean(np.concatenate(errors) ** 2, axis=0))
     rng = np.random.default_rng(0)
     # the control: the true actions with an error as large as the labels' but independent from frame to frame
-    noisy = {e: (None, np.clip(truth[e][1] + rng.normal(0, rms, truth[e][1].shape), -1, 1)) for e in held_out}
+    noisy = {e: (None, np.clip(truth[e][1] + rng.normal(0, rms, truth[e][1].shape), low, high)) for e in held_out}
     for arm, source in (("true", truth), ("idm", labels), ("true_plus_white_noise", noisy)):
         successes, mean_drift, final_drift, chunk = [], [], [], []
         for episode in held_out:
