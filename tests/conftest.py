@@ -1,3 +1,4 @@
+import atexit
 import contextlib
 import io
 import json
@@ -25,8 +26,11 @@ from filelock import FileLock  # noqa: E402
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("HF_HUB_OFFLINE", "0")
-# The frame cache of this test session (data.frame_cache), not the user's.
-os.environ.setdefault("LEROBOT_IUPE_CACHE", tempfile.mkdtemp(prefix="lerobot-iupe-frames-"))
+# The frame cache of this test session (data.frame_cache), not the user's; removed when the session that made it
+# exits (xdist's workers and the commands the tests start inherit it).
+if "LEROBOT_IUPE_CACHE" not in os.environ:
+    os.environ["LEROBOT_IUPE_CACHE"] = tempfile.mkdtemp(prefix="lerobot-iupe-frames-")
+    atexit.register(shutil.rmtree, os.environ["LEROBOT_IUPE_CACHE"], ignore_errors=True)
 
 BIN = Path(sys.executable).parent
 
