@@ -12,6 +12,7 @@ import pytest
 import torch
 from conftest import BIN, CHECKPOINT, once, run_cli, run_in_process
 from lerobot.datasets import LeRobotDataset
+from lerobot.policies.act.configuration_act import ACTConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from safetensors.torch import load_file
 
@@ -233,6 +234,33 @@ def test_lerobots_chunked_policies_train_on_the_relabelled_labels(continuous_idm
     else:
         np.testing.assert_allclose(stats["action.min"].numpy(), labels.min(0), rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(stats["action.max"].numpy(), labels.max(0), rtol=1e-5, atol=1e-6)
+
+
+def test_the_chunks_lerobot_reads_from_a_relabelled_dataset_follow_the_true_actions_step_by_step(continuous_idm, work):
+    """What a chunked policy trains on: at each frame t LeRobot's dataset reads the actions t … t+4 (its
+    delta_timestamps from ACT's own config). On a relabelled dataset position i of that chunk is the label of the
+    transition t+i → t+i+1, so it follows the true action of step t+i, not its neighbour's."""
+    dataset, offsets = work / "chunks", ACTConfig(chunk_size=5, n_action_steps=5).action_delta_indices
+    true = write_point_mass(dataset, episodes=4, seed=7, with_actions=False, fps=10)
+    relabel(continuous_idm, dataset)
+    frames = LeRobotDataset(f"local/{dataset.name}", root=dataset, delta_timestamps={ACTION: [i / 10 for i in offsets]})
+    episodes = np.asarray(frames.hf_dataset.with_format("numpy")["episode_index"])
+    # steps whose label and successor's label are both read off a transition (an episode's last frame has none)
+    labelled = np.append(episodes[:-1] == episodes[1:], False)
+    read, aligned, one_late = [], [], []
+    for t in range(len(frames)):
+        item = frames[t]
+        for i, offset in enumerate(offsets):
+            step = t + offset
+            if item["action_is_pad"][i] or not labelled[step] or not labelled[step + 1]:
+                continue
+            read.append(item[ACTION][i].numpy())
+            aligned.append(true[step])
+            one_late.append(true[step + 1])
+    read, aligned, one_late = np.array(read), np.array(aligned), np.array(one_late)
+    assert len(read) > 200
+    assert r_squared(read, aligned) > 0.9
+    assert r_squared(read, one_late) < r_squared(read, aligned) - 0.2
 
 
 def test_two_processes_write_the_same_bytes_as_one(continuous_idm, work):
