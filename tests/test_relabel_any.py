@@ -101,10 +101,15 @@ def relabel(checkpoint, dataset, *flags: str, check: bool = True, launcher: tupl
     return result
 
 
-def inner(actions: np.ndarray, dataset) -> np.ndarray:
-    """The frames with a successor (the last frame of an episode repeats the label before it)."""
+def with_successor(dataset) -> np.ndarray:
+    """Per frame, whether it has a successor in its episode (the last frame repeats the label before it)."""
     episodes = np.asarray(dataset.hf_dataset.with_format("numpy")["episode_index"])
-    return actions[np.append(episodes[:-1] == episodes[1:], False)]
+    return np.append(episodes[:-1] == episodes[1:], False)
+
+
+def inner(actions: np.ndarray, dataset) -> np.ndarray:
+    """The frames with a successor."""
+    return actions[with_successor(dataset)]
 
 
 @pytest.fixture(scope="session")
@@ -240,13 +245,13 @@ def test_the_chunks_lerobot_reads_from_a_relabelled_dataset_follow_the_true_acti
     """What a chunked policy trains on: at each frame t LeRobot's dataset reads the actions t … t+4 (its
     delta_timestamps from ACT's own config). On a relabelled dataset position i of that chunk is the label of the
     transition t+i → t+i+1, so it follows the true action of step t+i, not its neighbour's."""
-    dataset, offsets = work / "chunks", ACTConfig(chunk_size=5, n_action_steps=5).action_delta_indices
-    true = write_point_mass(dataset, episodes=4, seed=7, with_actions=False, fps=10)
+    dataset, offsets, fps = work / "chunks", ACTConfig(chunk_size=5, n_action_steps=5).action_delta_indices, 10
+    true = write_point_mass(dataset, episodes=4, seed=7, with_actions=False, fps=fps)
     relabel(continuous_idm, dataset)
-    frames = LeRobotDataset(f"local/{dataset.name}", root=dataset, delta_timestamps={ACTION: [i / 10 for i in offsets]})
-    episodes = np.asarray(frames.hf_dataset.with_format("numpy")["episode_index"])
+    chunk = {ACTION: [i / fps for i in offsets]}
+    frames = LeRobotDataset(f"local/{dataset.name}", root=dataset, delta_timestamps=chunk)
     # steps whose label and successor's label are both read off a transition (an episode's last frame has none)
-    labelled = np.append(episodes[:-1] == episodes[1:], False)
+    labelled = with_successor(frames)
     read, aligned, one_late = [], [], []
     for t in range(len(frames)):
         item = frames[t]
