@@ -79,6 +79,8 @@ FIT = ["--policy.use_vae=false", "--policy.dropout=0.0", "--policy.optimizer_lr=
 ACT_SETTINGS = {
     "chunk10": ["--policy.n_action_steps=10"],
     "replan": ["--policy.n_action_steps=1"],
+    # replan without ACT's VAE (LeRobot's other defaults kept): whether the VAE is what label noise upsets
+    "replan_novae": ["--policy.n_action_steps=1", "--policy.use_vae=false"],
     "ensemble": ["--policy.n_action_steps=1", "--policy.temporal_ensemble_coeff=0.01"],
     # chunk10 fitted harder: a scripted expert has one action per state, so no VAE, no dropout, learning rate 1e-3
     "fit": ["--policy.n_action_steps=10", *FIT],

@@ -1,0 +1,142 @@
+"""Why LeRobot's ACT trains worse on LunarLander's labels than on its true actions: ACT trained as
+`downstream.py --act replan` trains it, on the expert dataset with actions that differ from the labels in one
+known way each, 3 seeds per control, each evaluated as `downstream.py` evaluates (`eval_policy_all` on seeds
+500000…).
+
+    python benchmarks/measure/act_controls.py --work /tmp/w/dl-lun
+
+Reads `<work>/lunarlander-true` and the labels `<work>/lunarlander-idm-k1-pull1`, both made by
+`downstream.py --envs lunarlander --arms --idm_context 1 --pull_to_observation 1`. Controls:
+
+- `labels_true_engines`: the labels, with each frame where a label switches an engine other than the true action
+  does (main on/off; side engine off, left or right) given its true action: the labels' errors of size alone.
+- `true_drift`: the true actions plus a drifting noise (AR(1), 0.8 a frame, about the labels' own lag-1
+  autocorrelation) as large as the labels' error per dimension, clipped to the action range: errors of the labels'
+  size and persistence, in no relation to the engines.
+
+Writes benchmarks/act_controls.json and .md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.datasets import LeRobotDataset
+
+from lerobot_iupe.benchmark.evaluation import evaluate_checkpoint
+from lerobot_iupe.data.readers import action_array, column_array
+from lerobot_iupe.envs.configs import env_config_from_settings
+from lerobot_iupe.relabel.writing import copy_dataset, write_labels
+
+sys.path.insert(0, str(Path(__file__).parent))
+from chunk_labels import drifting_noise  # noqa: E402
+from downstream import ENV_SETTINGS, POLICY_SETTINGS, lunar_effect, train  # noqa: E402
+from steps import command_line, write_page  # noqa: E402
+
+ACT, STEPS, EVAL_EPISODES = "replan", 3000, 50
+CONTROLS = ("labels_true_engines", "true_drift")
+
+
+def engine_class(actions: np.ndarray) -> np.ndarray:
+    """Per frame: main engine on (1) or off (0); side engine left (-1), off (0) or right (1)."""
+    effect = lunar_effect(actions)
+    return np.stack([effect[:, 0] > 0, np.sign(effect[:, 1])], axis=1).astype(np.int8)
+
+
+def labels_with_true_engines(labels: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """``labels`` where they switch each engine as ``true`` does, ``true`` where they do not (per dimension)."""
+    return np.where(engine_class(labels) == engine_class(true), labels, true).astype(np.float32)
+
+
+def true_with_drift(true: np.ndarray, labels: np.ndarray, episode: np.ndarray, seed: int = 0) -> np.ndarray:
+    scale = np.sqrt(((labels - true) ** 2).mean(0))
+    noisy = true + drifting_noise(episode, scale, 0.8, np.random.default_rng(seed))
+    return np.clip(noisy, -1.0, 1.0).astype(np.float32)
+
+
+def control_dataset(work: Path, name: str, true_set: LeRobotDataset, actions: np.ndarray) -> Path:
+    root = work / f"lunarlander-control-{name}"
+    if not (root / "meta" / "info.json").exists():
+        staged = root.with_name(root.name + ".partial")
+        shutil.rmtree(staged, ignore_errors=True)
+        copy_dataset(true_set.root, staged)
+        write_labels(staged, actions, dict(true_set.meta.features["action"]))
+        staged.rename(root)
+    return root
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--controls", nargs="+", default=list(CONTROLS), choices=CONTROLS)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks"))
+    args = parser.parse_args()
+    true_root, labels_root = args.work / "lunarlander-true", args.work / "lunarlander-idm-k1-pull1"
+    true_set = LeRobotDataset(f"local/{true_root.name}", root=true_root)
+    true, episode = action_array(true_set), column_array(true_set.hf_dataset, "episode_index")
+    labels = action_array(LeRobotDataset(f"local/{labels_root.name}", root=labels_root))
+    actions = {
+        "labels_true_engines": lambda: labels_with_true_engines(labels, true),
+        "true_drift": lambda: true_with_drift(true, labels, episode),
+    }
+    datasets, quality = {}, {}
+    for name in args.controls:
+        made = actions[name]()
+        datasets[name] = control_dataset(args.work, name, true_set, made)
+        error = made - true
+        quality[name] = {
+            "error_rms": np.sqrt((error**2).mean(0)).round(4).tolist(),
+            "engine_agreement": (engine_class(made) == engine_class(true)).mean(0).round(4).tolist(),
+        }
+        print(name, quality[name], flush=True)
+
+    def train_control(job):
+        name, seed = job
+        start = time.perf_counter()
+        checkpoint = train(datasets[name], args.work / f"lunarlander-act-control-{name}-s{seed}-{ACT}-{STEPS}",
+                           STEPS, seed, POLICY_SETTINGS["act"][ACT])  # fmt: skip
+        return checkpoint, time.perf_counter() - start
+
+    jobs = [(name, seed) for name in args.controls for seed in args.seeds]
+    with ThreadPoolExecutor(args.jobs) as pool:
+        trained = list(pool.map(train_control, jobs))
+    torch.set_num_threads(1)
+    env_cfg = env_config_from_settings(ENV_SETTINGS["lunarlander"])
+    out_json = args.out / "act_controls.json"
+    rows = json.loads(out_json.read_text())["rows"] if out_json.exists() else []
+    for (name, seed), (checkpoint, train_s) in zip(jobs, trained, strict=True):
+        start = time.perf_counter()
+        result = evaluate_checkpoint(checkpoint, env_cfg, EVAL_EPISODES)
+        row = {"control": name, "seed": seed, "act": ACT, "act_steps": STEPS, "episodes": EVAL_EPISODES,
+               "success_rate": result["pc_success"] / 100.0, "train_s": round(train_s),
+               "eval_s": round(time.perf_counter() - start), **quality[name]}  # fmt: skip
+        rows = [r for r in rows if (r["control"], r["seed"]) != (name, seed)] + [row]
+        print(json.dumps(row), flush=True)
+    write(args.out, rows, command_line())
+
+
+def write(out: Path, rows: list[dict], command: str) -> None:
+    table = ["| actions | seed | success | engine agreement (main, side) | error rms (main, side) | train s |",
+             "|---|---|---|---|---|---|"]  # fmt: skip
+    for row in sorted(rows, key=lambda r: (r["control"], r["seed"])):
+        table.append(
+            f"| {row['control']} | {row['seed']} | {row['success_rate']:.2f} | "
+            f"{', '.join(f'{x:.3f}' for x in row['engine_agreement'])} | "
+            f"{', '.join(f'{x:.3f}' for x in row['error_rms'])} | {row['train_s']} |"
+        )
+    write_page(out, "act_controls", command, rows, "ACT on LunarLander: controls for the labels' gap",
+               (__doc__ or "").split("\n\n")[0], table)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
