@@ -10,6 +10,11 @@ Reads `<work>/lunarlander-true` and the labels `<work>/lunarlander-idm-k1-pull1`
 
 - `labels_true_engines`: the labels, with each frame where a label switches an engine other than the true action
   does (main on/off; side engine off, left or right) given its true action: the labels' errors of size alone.
+- `labels_canonical_engines`: what a user without the true actions could do where the actuator's dead zones are
+  known: a classifier (a 2×256 MLP on [s_t, s_{t+1} − s_t], cross-entropy) trained on the IDM's 10 labelled
+  episodes tells whether each engine fires; a label the classifier says is off is set to its dead zone's centre
+  (main −0.5, side 0: the same effect as any value there), one it says is on is kept at least `MARGIN` beyond the
+  threshold.
 - `true_drift`: the true actions plus a drifting noise (AR(1), 0.8 a frame, about the labels' own lag-1
   autocorrelation) as large as the labels' error per dimension, clipped to the action range: errors of the labels'
   size and persistence, in no relation to the engines.
@@ -42,7 +47,8 @@ from downstream import ENV_SETTINGS, POLICY_SETTINGS, lunar_effect, train  # noq
 from steps import command_line, write_page  # noqa: E402
 
 ACT, STEPS, EVAL_EPISODES = "replan", 3000, 50
-CONTROLS = ("labels_true_engines", "true_drift")
+CONTROLS = ("labels_true_engines", "labels_canonical_engines", "true_drift")
+LABELLED_EPISODES, MARGIN = 10, 0.05
 
 
 def engine_class(actions: np.ndarray) -> np.ndarray:
@@ -54,6 +60,50 @@ def engine_class(actions: np.ndarray) -> np.ndarray:
 def labels_with_true_engines(labels: np.ndarray, true: np.ndarray) -> np.ndarray:
     """``labels`` where they switch each engine as ``true`` does, ``true`` where they do not (per dimension)."""
     return np.where(engine_class(labels) == engine_class(true), labels, true).astype(np.float32)
+
+
+def observation_pairs(true_set: LeRobotDataset) -> np.ndarray:
+    """[s_t, s_{t+1} − s_t] of every frame (an episode's last frame: difference 0), standardised."""
+    table = true_set.hf_dataset
+    keys = ("observation.state", "observation.environment_state")
+    state = np.concatenate([column_array(table, key) for key in keys], 1).astype(np.float32)
+    episode = column_array(table, "episode_index")
+    following = np.append(episode[:-1] == episode[1:], False)
+    after = np.where(following[:, None], np.roll(state, -1, axis=0), state)
+    pairs = np.concatenate([state, after - state], 1)
+    return (pairs - pairs.mean(0)) / (pairs.std(0) + 1e-6)
+
+
+def classified_engines(pairs: np.ndarray, true: np.ndarray, train_rows: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Each frame's ``engine_class`` as a 2×256 MLP predicts it from ``pairs``, trained by cross-entropy on
+    ``train_rows`` (4,000 steps of 256, Adam 1e-3)."""
+    torch.manual_seed(seed)
+    net = torch.nn.Sequential(
+        torch.nn.Linear(pairs.shape[1], 256), torch.nn.ReLU(), torch.nn.Linear(256, 256), torch.nn.ReLU(),
+        torch.nn.Linear(256, 5),
+    )  # fmt: skip
+    optimizer = torch.optim.Adam(net.parameters(), lr=1e-3)
+    x = torch.as_tensor(pairs[train_rows])
+    classes = torch.as_tensor(engine_class(true[train_rows]).astype(np.int64) + np.array([0, 1]))
+    for _ in range(4000):
+        rows = torch.randint(len(x), (256,))
+        logits = net(x[rows])
+        loss = torch.nn.functional.cross_entropy(logits[:, :2], classes[rows, 0])
+        loss = loss + torch.nn.functional.cross_entropy(logits[:, 2:], classes[rows, 1])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    with torch.no_grad():
+        logits = net(torch.as_tensor(pairs))
+    return np.stack([logits[:, :2].argmax(1).numpy(), logits[:, 2:].argmax(1).numpy() - 1], 1).astype(np.int8)
+
+
+def canonical_labels(labels: np.ndarray, engines: np.ndarray) -> np.ndarray:
+    """``labels`` with each engine as ``engines`` says: off at its dead zone's centre, on at least ``MARGIN``
+    beyond its threshold (main on above 0, side engine on beyond ±0.5)."""
+    main = np.where(engines[:, 0] == 1, np.maximum(labels[:, 0], MARGIN), -0.5)
+    side = np.where(engines[:, 1] != 0, engines[:, 1] * np.maximum(np.abs(labels[:, 1]), 0.5 + MARGIN), 0.0)
+    return np.stack([main, side], 1).astype(np.float32)
 
 
 def true_with_drift(true: np.ndarray, labels: np.ndarray, episode: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -87,6 +137,9 @@ def main() -> None:
     labels = action_array(LeRobotDataset(f"local/{labels_root.name}", root=labels_root))
     actions = {
         "labels_true_engines": lambda: labels_with_true_engines(labels, true),
+        "labels_canonical_engines": lambda: canonical_labels(
+            labels, classified_engines(observation_pairs(true_set), true, np.flatnonzero(episode < LABELLED_EPISODES))
+        ),
         "true_drift": lambda: true_with_drift(true, labels, episode),
     }
     datasets, quality = {}, {}
@@ -113,7 +166,8 @@ def main() -> None:
     torch.set_num_threads(1)
     env_cfg = env_config_from_settings(ENV_SETTINGS["lunarlander"])
     out_json = args.out / "act_controls.json"
-    rows = json.loads(out_json.read_text())["rows"] if out_json.exists() else []
+    before = json.loads(out_json.read_text()) if out_json.exists() else {"command": "", "rows": []}
+    rows = before["rows"]
     for (name, seed), (checkpoint, train_s) in zip(jobs, trained, strict=True):
         start = time.perf_counter()
         result = evaluate_checkpoint(checkpoint, env_cfg, EVAL_EPISODES)
@@ -122,7 +176,8 @@ def main() -> None:
                "eval_s": round(time.perf_counter() - start), **quality[name]}  # fmt: skip
         rows = [r for r in rows if (r["control"], r["seed"]) != (name, seed)] + [row]
         print(json.dumps(row), flush=True)
-    write(args.out, rows, command_line())
+    commands = [c for c in before["command"].split("`, `") if c] + [command_line()]
+    write(args.out, rows, "`, `".join(dict.fromkeys(commands)))  # every command whose rows the page keeps
 
 
 def write(out: Path, rows: list[dict], command: str) -> None:

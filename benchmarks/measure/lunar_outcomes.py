@@ -1,0 +1,92 @@
+"""How LunarLander episodes end under trained policies: the evaluation episodes of `downstream.py` (seeds 500000…,
+50 of them) played again by each checkpoint, each end sorted into a safe landing (the success `lerobot-eval`
+counts), at rest but not on the pad (or not on both legs), crashed (Box2D's game over or off the screen) or out of
+time (1,000 steps), with where the lander ended (|x|, the pad's flags at 0.2) and how often each engine fired.
+
+    python benchmarks/measure/lunar_outcomes.py --work /tmp/w/dl-lun --runs 'lunarlander-act-*-replan-3000'
+
+Writes benchmarks/lunar_outcomes.json and .md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from lerobot.datasets import LeRobotDataset
+
+from lerobot_iupe.benchmark.evaluation import load_checkpoint
+from lerobot_iupe.envs.lunar import LunarLanderEnv
+
+sys.path.insert(0, str(Path(__file__).parent))
+from steps import CHECKPOINT, command_line, write_page  # noqa: E402
+
+EVAL_SEED, EPISODES, MAX_STEPS = 500_000, 50, 1000
+ENDS = ("landed", "at rest off the pad", "crashed", "out of time")
+
+
+def play(checkpoint: Path, meta, episodes: int = EPISODES) -> dict:
+    """Each episode's end (``ENDS``), the lander's final |x|, and the share of steps each engine fired."""
+    _, policy, preprocessor, postprocessor = load_checkpoint(checkpoint, ds_meta=meta)
+    env = gym.wrappers.TimeLimit(LunarLanderEnv(render_mode=None), MAX_STEPS)
+    ends, final_x, fired = [], [], []
+    for index in range(episodes):
+        observation, _ = env.reset(seed=EVAL_SEED + index)
+        policy.reset()
+        while True:
+            batch = {
+                "observation.state": torch.as_tensor(observation["agent_pos"], dtype=torch.float32)[None],
+                "observation.environment_state": torch.as_tensor(observation["environment_state"], dtype=torch.float32)[
+                    None
+                ],
+                "task": [""],
+            }
+            with torch.no_grad():
+                action = postprocessor(policy.select_action(preprocessor(batch)))[0].numpy()
+            fired.append((action[0] > 0, abs(action[1]) > 0.5))
+            observation, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        at_rest = terminated and not env.unwrapped.lander.awake
+        ends.append(ENDS[0] if info["is_success"] else ENDS[1] if at_rest else ENDS[2] if terminated else ENDS[3])
+        final_x.append(abs(float(observation["agent_pos"][0])))
+    return {
+        "ends": {end: ends.count(end) for end in ENDS},
+        "success_rate": ends.count(ENDS[0]) / episodes,
+        "final_abs_x_median": float(np.median(final_x)),
+        "engines_fired": np.mean(fired, axis=0).round(3).tolist(),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--work", type=Path, required=True)
+    parser.add_argument("--runs", nargs="+", required=True, help="run folders in --work (glob patterns)")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks"))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    truth = args.work / "lunarlander-true"
+    meta = LeRobotDataset(f"local/{truth.name}", root=truth).meta
+    runs = sorted({run for pattern in args.runs for run in args.work.glob(pattern) if (run / CHECKPOINT).exists()})
+    rows = []
+    for run in runs:
+        rows.append({"run": run.name, **play(run / CHECKPOINT, meta)})
+        print(rows[-1], flush=True)
+    table = [f"| run | success | {' | '.join(ENDS)} | final \\|x\\| (median) | main, side engine fired |",
+             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for row in rows:
+        counts = " | ".join(str(row["ends"][end]) for end in ENDS)
+        fired = ", ".join(f"{x:.3f}" for x in row["engines_fired"])
+        table.append(
+            f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {fired} |"
+        )
+    write_page(args.out, "lunar_outcomes", command_line(), rows, "How LunarLander episodes end under trained policies",
+               (__doc__ or "").split("\n\n")[0], table)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
