@@ -1,7 +1,7 @@
 """Why LeRobot's ACT trains worse on LunarLander's labels than on its true actions: ACT trained as
-`downstream.py --act replan` trains it, on the expert dataset with actions that differ from the labels in one
-known way each, 3 seeds per control, each evaluated as `downstream.py` evaluates (`eval_policy_all` on seeds
-500000…).
+`downstream.py --act replan` trains it, on the expert dataset with actions made from the labels or the true
+actions to differ from them in one known way each, 3 seeds per control, each evaluated as `downstream.py`
+evaluates (`eval_policy_all` on seeds 500000…).
 
     python benchmarks/measure/act_controls.py --work /tmp/w/dl-lun
 
@@ -189,8 +189,9 @@ def write(out: Path, rows: list[dict], command: str) -> None:
             f"{', '.join(f'{x:.3f}' for x in row['engine_agreement'])} | "
             f"{', '.join(f'{x:.3f}' for x in row['error_rms'])} | {row['train_s']} |"
         )
-    write_page(out, "act_controls", command, rows, "ACT on LunarLander: controls for the labels' gap",
-               (__doc__ or "").split("\n\n")[0], table)  # fmt: skip
+    parts = (__doc__ or "").split("\n\n")
+    intro = "\n\n".join([parts[0], *parts[2:-1]])  # what each control is, without the usage line
+    write_page(out, "act_controls", command, rows, "ACT on LunarLander: controls for the labels' gap", intro, table)
 
 
 if __name__ == "__main__":
