@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from lerobot.datasets import LeRobotDataset
+from lerobot.envs.utils import preprocess_observation
 
 from lerobot_iupe.benchmark.evaluation import load_checkpoint
 from lerobot_iupe.envs.lunar import LunarLanderEnv
@@ -38,13 +39,7 @@ def play(checkpoint: Path, meta, episodes: int = EPISODES) -> dict:
         observation, _ = env.reset(seed=EVAL_SEED + index)
         policy.reset()
         while True:
-            batch = {
-                "observation.state": torch.as_tensor(observation["agent_pos"], dtype=torch.float32)[None],
-                "observation.environment_state": torch.as_tensor(observation["environment_state"], dtype=torch.float32)[
-                    None
-                ],
-                "task": [""],
-            }
+            batch = {**preprocess_observation(observation), "task": [""]}  # as lerobot-eval reads the env
             with torch.no_grad():
                 action = postprocessor(policy.select_action(preprocessor(batch)))[0].numpy()
             fired.append((action[0] > 0, abs(action[1]) > 0.5))
