@@ -166,7 +166,7 @@ def main() -> None:
     torch.set_num_threads(1)
     env_cfg = env_config_from_settings(ENV_SETTINGS["lunarlander"])
     out_json = args.out / "act_controls.json"
-    before = json.loads(out_json.read_text()) if out_json.exists() else {"command": "", "rows": []}
+    before = json.loads(out_json.read_text()) if out_json.exists() else {"commands": [], "rows": []}
     rows = before["rows"]
     for (name, seed), (checkpoint, train_s) in zip(jobs, trained, strict=True):
         start = time.perf_counter()
@@ -176,11 +176,11 @@ def main() -> None:
                "eval_s": round(time.perf_counter() - start), **quality[name]}  # fmt: skip
         rows = [r for r in rows if (r["control"], r["seed"]) != (name, seed)] + [row]
         print(json.dumps(row), flush=True)
-    commands = [c for c in before["command"].split("`, `") if c] + [command_line()]
-    write(args.out, rows, "`, `".join(dict.fromkeys(commands)))  # every command whose rows the page keeps
+    commands = before.get("commands") or before["command"].split("`, `")  # a page of one command kept it as a string
+    write(args.out, rows, list(dict.fromkeys([*commands, command_line()])))  # every command whose rows the page keeps
 
 
-def write(out: Path, rows: list[dict], command: str) -> None:
+def write(out: Path, rows: list[dict], commands: list[str]) -> None:
     table = ["| actions | seed | success | engine agreement (main, side) | error rms (main, side) | train s |",
              "|---|---|---|---|---|---|"]  # fmt: skip
     for row in sorted(rows, key=lambda r: (r["control"], r["seed"])):
@@ -191,7 +191,7 @@ def write(out: Path, rows: list[dict], command: str) -> None:
         )
     parts = (__doc__ or "").split("\n\n")
     intro = "\n\n".join([parts[0], *parts[2:-1]])  # what each control is, without the usage line
-    write_page(out, "act_controls", command, rows, "ACT on LunarLander: controls for the labels' gap", intro, table)
+    write_page(out, "act_controls", commands, rows, "ACT on LunarLander: controls for the labels' gap", intro, table)
 
 
 if __name__ == "__main__":

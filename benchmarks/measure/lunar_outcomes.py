@@ -1,7 +1,9 @@
 """How LunarLander episodes end under trained policies: the evaluation episodes of `downstream.py` (seeds 500000…,
 50 of them) played again by each checkpoint, each end sorted into a safe landing (the success `lerobot-eval`
 counts), at rest but not on the pad (or not on both legs), crashed (Box2D's game over or off the screen) or out of
-time (1,000 steps), with where the lander ended (|x|, the pad's flags at 0.2) and how often each engine fired.
+time (1,000 steps), with where the lander ended (|x|, the pad's flags at 0.2; over every episode and over those at
+rest off the pad alone, which tells a lander beside the pad from one on the pad on one leg) and how often each engine
+fired.
 
     python benchmarks/measure/lunar_outcomes.py --work /tmp/w/dl-lun --runs 'lunarlander-act-*-replan-3000'
 
@@ -30,8 +32,13 @@ EVAL_SEED, EPISODES, MAX_STEPS = 500_000, 50, 1000
 ENDS = ("landed", "at rest off the pad", "crashed", "out of time")
 
 
+def median_or_none(values: list[float]) -> float | None:
+    return float(np.median(values)) if values else None
+
+
 def play(checkpoint: Path, meta, episodes: int = EPISODES) -> dict:
-    """Each episode's end (``ENDS``), the lander's final |x|, and the share of steps each engine fired."""
+    """Each episode's end (``ENDS``), the lander's final |x| (median over all episodes and over those at rest off the
+    pad; None where there are none), and the share of steps each engine fired."""
     _, policy, preprocessor, postprocessor = load_checkpoint(checkpoint, ds_meta=meta)
     env = gym.wrappers.TimeLimit(LunarLanderEnv(render_mode=None), MAX_STEPS)
     ends, final_x, fired = [], [], []
@@ -53,6 +60,7 @@ def play(checkpoint: Path, meta, episodes: int = EPISODES) -> dict:
         "ends": {end: ends.count(end) for end in ENDS},
         "success_rate": ends.count(ENDS[0]) / episodes,
         "final_abs_x_median": float(np.median(final_x)),
+        "off_pad_abs_x_median": median_or_none([x for x, end in zip(final_x, ends, strict=True) if end == ENDS[1]]),
         "engines_fired": np.mean(fired, axis=0).round(3).tolist(),
     }
 
@@ -71,13 +79,16 @@ def main() -> None:
     for run in runs:
         rows.append({"run": run.name, **play(run / CHECKPOINT, meta)})
         print(rows[-1], flush=True)
-    table = [f"| run | success | {' | '.join(ENDS)} | final \\|x\\| (median) | main, side engine fired |",
-             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    table = [f"| run | success | {' | '.join(ENDS)} | final \\|x\\| (median) | at rest off the pad: \\|x\\| "
+             "(median) | main, side engine fired |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for row in rows:
         counts = " | ".join(str(row["ends"][end]) for end in ENDS)
         fired = ", ".join(f"{x:.3f}" for x in row["engines_fired"])
+        off_pad = "–" if row["off_pad_abs_x_median"] is None else f"{row['off_pad_abs_x_median']:.2f}"
         table.append(
-            f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {fired} |"
+            f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {off_pad} | "
+            f"{fired} |"
         )
     write_page(args.out, "lunar_outcomes", command_line(), rows, "How LunarLander episodes end under trained policies",
                (__doc__ or "").split("\n\n")[0], table)  # fmt: skip

@@ -98,10 +98,14 @@ def command_line() -> str:
     return " ".join(["python", str(script), *sys.argv[1:]])
 
 
-def write_page(out: Path, stem: str, command: str, rows: list[dict], title: str, intro: str, table: list[str]) -> None:
-    """A measurement's ``<stem>.json`` (its command and rows) and ``<stem>.md`` (title, command, what it measured,
-    a table) in ``out``; the page is printed too."""
-    (out / f"{stem}.json").write_text(json.dumps({"command": command, "rows": rows}, indent=1) + "\n")
-    lines = [f"# {title}", "", f"`{command}`: {intro}", "", *table]
+def write_page(
+    out: Path, stem: str, command: str | list[str], rows: list[dict], title: str, intro: str, table: list[str]
+) -> None:
+    """A measurement's ``<stem>.json`` (its command, or its commands where its rows come from several, and its rows)
+    and ``<stem>.md`` (title, command(s), what it measured, a table) in ``out``; the page is printed too."""
+    key = "command" if isinstance(command, str) else "commands"
+    (out / f"{stem}.json").write_text(json.dumps({key: command, "rows": rows}, indent=1) + "\n")
+    shown = command if isinstance(command, str) else "`, `".join(command)
+    lines = [f"# {title}", "", f"`{shown}`: {intro}", "", *table]
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
