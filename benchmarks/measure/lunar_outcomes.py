@@ -7,12 +7,14 @@ fired.
 
     python benchmarks/measure/lunar_outcomes.py --work /tmp/w/dl-lun --runs 'lunarlander-act-*-replan-3000'
 
-Writes benchmarks/lunar_outcomes.json and .md.
+Writes benchmarks/lunar_outcomes.json and .md; a run already on the page is replaced, others are kept with the
+commands that measured them.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -75,22 +77,32 @@ def main() -> None:
     truth = args.work / "lunarlander-true"
     meta = LeRobotDataset(f"local/{truth.name}", root=truth).meta
     runs = sorted({run for pattern in args.runs for run in args.work.glob(pattern) if (run / CHECKPOINT).exists()})
-    rows = []
+    page = args.out / "lunar_outcomes.json"
+    before = json.loads(page.read_text()) if page.exists() else {"commands": [], "rows": []}
+    commands = list(dict.fromkeys([*(before.get("commands") or [before["command"]]), command_line()]))
+    measured = []
     for run in runs:
-        rows.append({"run": run.name, **play(run / CHECKPOINT, meta)})
-        print(rows[-1], flush=True)
+        measured.append({"run": run.name, **play(run / CHECKPOINT, meta)})
+        print(measured[-1], flush=True)
+    names = {row["run"] for row in measured}
+    rows = sorted([row for row in before["rows"] if row["run"] not in names] + measured, key=lambda row: row["run"])
+    write(args.out, rows, commands)
+
+
+def write(out: Path, rows: list[dict], commands: list[str]) -> None:
     table = [f"| run | success | {' | '.join(ENDS)} | final \\|x\\| (median) | at rest off the pad: \\|x\\| "
              "(median) | main, side engine fired |",
              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for row in rows:
         counts = " | ".join(str(row["ends"][end]) for end in ENDS)
         fired = ", ".join(f"{x:.3f}" for x in row["engines_fired"])
-        off_pad = "–" if row["off_pad_abs_x_median"] is None else f"{row['off_pad_abs_x_median']:.2f}"
+        off_pad = row.get("off_pad_abs_x_median", "not measured")  # a row measured before the column was added
+        off_pad = "–" if off_pad is None else off_pad if isinstance(off_pad, str) else f"{off_pad:.2f}"
         table.append(
             f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {off_pad} | "
             f"{fired} |"
         )
-    write_page(args.out, "lunar_outcomes", command_line(), rows, "How LunarLander episodes end under trained policies",
+    write_page(out, "lunar_outcomes", commands, rows, "How LunarLander episodes end under trained policies",
                (__doc__ or "").split("\n\n")[0], table)  # fmt: skip
 
 
