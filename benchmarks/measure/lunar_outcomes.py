@@ -79,7 +79,8 @@ def main() -> None:
     runs = sorted({run for pattern in args.runs for run in args.work.glob(pattern) if (run / CHECKPOINT).exists()})
     page = args.out / "lunar_outcomes.json"
     before = json.loads(page.read_text()) if page.exists() else {"commands": [], "rows": []}
-    commands = list(dict.fromkeys([*(before.get("commands") or [before["command"]]), command_line()]))
+    recorded = before["commands"] if "commands" in before else [before["command"]]  # a page of one command: a string
+    commands = list(dict.fromkeys([*recorded, command_line()]))
     measured = []
     for run in runs:
         measured.append({"run": run.name, **play(run / CHECKPOINT, meta)})
