@@ -176,7 +176,8 @@ def main() -> None:
                "eval_s": round(time.perf_counter() - start), **quality[name]}  # fmt: skip
         rows = [r for r in rows if (r["control"], r["seed"]) != (name, seed)] + [row]
         print(json.dumps(row), flush=True)
-    commands = before.get("commands") or before["command"].split("`, `")  # a page of one command kept it as a string
+    # pages written before the list kept their commands in one string
+    commands = before["commands"] if "commands" in before else before["command"].split("`, `")
     write(args.out, rows, list(dict.fromkeys([*commands, command_line()])))  # every command whose rows the page keeps
 
 
