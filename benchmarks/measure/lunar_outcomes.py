@@ -1,9 +1,9 @@
 """How LunarLander episodes end under trained policies: the evaluation episodes of `downstream.py` (seeds 500000…,
 50 of them) played again by each checkpoint, each end sorted into a safe landing (the success `lerobot-eval`
-counts), at rest but not on the pad (or not on both legs), crashed (Box2D's game over or off the screen) or out of
-time (1,000 steps), with where the lander ended (|x|, the pad's flags at 0.2; over every episode and over those at
-rest off the pad alone, which tells a lander beside the pad from one on the pad on one leg) and how often each engine
-fired.
+counts), at rest but not landed (beside the pad, or between its flags without both legs down), crashed (Box2D's
+game over or off the screen) or out of time (1,000 steps), with where the lander ended (|x|, the pad's flags at 0.2;
+over every episode and over those at rest but not landed alone, which tells a lander beside the pad from one between
+the flags) and how often each engine fired.
 
     python benchmarks/measure/lunar_outcomes.py --work /tmp/w/dl-lun --runs 'lunarlander-act-*-replan-3000'
 
@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from steps import CHECKPOINT, command_line, write_page  # noqa: E402
 
 EVAL_SEED, EPISODES, MAX_STEPS = 500_000, 50, 1000
-ENDS = ("landed", "at rest off the pad", "crashed", "out of time")
+ENDS = ("landed", "at rest, not landed", "crashed", "out of time")
 
 
 def median_or_none(values: list[float]) -> float | None:
@@ -39,8 +39,8 @@ def median_or_none(values: list[float]) -> float | None:
 
 
 def play(checkpoint: Path, meta, episodes: int = EPISODES) -> dict:
-    """Each episode's end (``ENDS``), the lander's final |x| (median over all episodes and over those at rest off the
-    pad; None where there are none), and the share of steps each engine fired."""
+    """Each episode's end (``ENDS``), the lander's final |x| (median over all episodes and over those at rest but not
+    landed; None where there are none), and the share of steps each engine fired."""
     _, policy, preprocessor, postprocessor = load_checkpoint(checkpoint, ds_meta=meta)
     env = gym.wrappers.TimeLimit(LunarLanderEnv(render_mode=None), MAX_STEPS)
     ends, final_x, fired = [], [], []
@@ -62,7 +62,9 @@ def play(checkpoint: Path, meta, episodes: int = EPISODES) -> dict:
         "ends": {end: ends.count(end) for end in ENDS},
         "success_rate": ends.count(ENDS[0]) / episodes,
         "final_abs_x_median": float(np.median(final_x)),
-        "off_pad_abs_x_median": median_or_none([x for x, end in zip(final_x, ends, strict=True) if end == ENDS[1]]),
+        "not_landed_at_rest_abs_x_median": median_or_none(
+            [x for x, end in zip(final_x, ends, strict=True) if end == ENDS[1]]
+        ),
         "engines_fired": np.mean(fired, axis=0).round(3).tolist(),
     }
 
@@ -91,16 +93,16 @@ def main() -> None:
 
 
 def write(out: Path, rows: list[dict], commands: list[str]) -> None:
-    table = [f"| run | success | {' | '.join(ENDS)} | final \\|x\\| (median) | at rest off the pad: \\|x\\| "
+    table = [f"| run | success | {' | '.join(ENDS)} | final \\|x\\| (median) | at rest, not landed: \\|x\\| "
              "(median) | main, side engine fired |",
              "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for row in rows:
         counts = " | ".join(str(row["ends"][end]) for end in ENDS)
         fired = ", ".join(f"{x:.3f}" for x in row["engines_fired"])
-        off_pad = row.get("off_pad_abs_x_median", "not measured")  # a row measured before the column was added
-        off_pad = "–" if off_pad is None else off_pad if isinstance(off_pad, str) else f"{off_pad:.2f}"
+        at_rest_x = row.get("not_landed_at_rest_abs_x_median", "not measured")  # rows measured before the column
+        at_rest_x = "–" if at_rest_x is None else at_rest_x if isinstance(at_rest_x, str) else f"{at_rest_x:.2f}"
         table.append(
-            f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {off_pad} | "
+            f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {at_rest_x} | "
             f"{fired} |"
         )
     write_page(out, "lunar_outcomes", commands, rows, "How LunarLander episodes end under trained policies",
