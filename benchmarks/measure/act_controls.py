@@ -44,7 +44,7 @@ from lerobot_iupe.relabel.writing import copy_dataset, write_labels
 sys.path.insert(0, str(Path(__file__).parent))
 from chunk_labels import drifting_noise  # noqa: E402
 from downstream import ENV_SETTINGS, POLICY_SETTINGS, lunar_effect, train  # noqa: E402
-from steps import command_line, write_page  # noqa: E402
+from steps import command_line, read_page, write_page  # noqa: E402
 
 ACT, STEPS, EVAL_EPISODES = "replan", 3000, 50
 CONTROLS = ("labels_true_engines", "labels_canonical_engines", "true_drift")
@@ -165,9 +165,7 @@ def main() -> None:
         trained = list(pool.map(train_control, jobs))
     torch.set_num_threads(1)
     env_cfg = env_config_from_settings(ENV_SETTINGS["lunarlander"])
-    out_json = args.out / "act_controls.json"
-    before = json.loads(out_json.read_text()) if out_json.exists() else {"commands": [], "rows": []}
-    rows = before["rows"]
+    rows, commands = read_page(args.out, "act_controls")
     for (name, seed), (checkpoint, train_s) in zip(jobs, trained, strict=True):
         start = time.perf_counter()
         result = evaluate_checkpoint(checkpoint, env_cfg, EVAL_EPISODES)
@@ -176,8 +174,6 @@ def main() -> None:
                "eval_s": round(time.perf_counter() - start), **quality[name]}  # fmt: skip
         rows = [r for r in rows if (r["control"], r["seed"]) != (name, seed)] + [row]
         print(json.dumps(row), flush=True)
-    # pages written before the list kept their commands in one string
-    commands = before["commands"] if "commands" in before else before["command"].split("`, `")
     write(args.out, rows, list(dict.fromkeys([*commands, command_line()])))  # every command whose rows the page keeps
 
 

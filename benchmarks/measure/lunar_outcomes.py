@@ -14,7 +14,6 @@ commands that measured them.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from lerobot_iupe.benchmark.evaluation import load_checkpoint
 from lerobot_iupe.envs.lunar import LunarLanderEnv
 
 sys.path.insert(0, str(Path(__file__).parent))
-from steps import CHECKPOINT, command_line, write_page  # noqa: E402
+from steps import CHECKPOINT, command_line, read_page, write_page  # noqa: E402
 
 EVAL_SEED, EPISODES, MAX_STEPS = 500_000, 50, 1000
 ENDS = ("landed", "at rest, not landed", "crashed", "out of time")
@@ -79,17 +78,14 @@ def main() -> None:
     truth = args.work / "lunarlander-true"
     meta = LeRobotDataset(f"local/{truth.name}", root=truth).meta
     runs = sorted({run for pattern in args.runs for run in args.work.glob(pattern) if (run / CHECKPOINT).exists()})
-    page = args.out / "lunar_outcomes.json"
-    before = json.loads(page.read_text()) if page.exists() else {"commands": [], "rows": []}
-    recorded = before["commands"] if "commands" in before else [before["command"]]  # a page of one command: a string
-    commands = list(dict.fromkeys([*recorded, command_line()]))
+    before, commands = read_page(args.out, "lunar_outcomes")
     measured = []
     for run in runs:
         measured.append({"run": run.name, **play(run / CHECKPOINT, meta)})
         print(measured[-1], flush=True)
     names = {row["run"] for row in measured}
-    rows = sorted([row for row in before["rows"] if row["run"] not in names] + measured, key=lambda row: row["run"])
-    write(args.out, rows, commands)
+    rows = sorted([row for row in before if row["run"] not in names] + measured, key=lambda row: row["run"])
+    write(args.out, rows, list(dict.fromkeys([*commands, command_line()])))
 
 
 def write(out: Path, rows: list[dict], commands: list[str]) -> None:
@@ -99,8 +95,8 @@ def write(out: Path, rows: list[dict], commands: list[str]) -> None:
     for row in rows:
         counts = " | ".join(str(row["ends"][end]) for end in ENDS)
         fired = ", ".join(f"{x:.3f}" for x in row["engines_fired"])
-        at_rest_x = row.get("not_landed_at_rest_abs_x_median", "not measured")  # rows measured before the column
-        at_rest_x = "–" if at_rest_x is None else at_rest_x if isinstance(at_rest_x, str) else f"{at_rest_x:.2f}"
+        at_rest_x = row["not_landed_at_rest_abs_x_median"]
+        at_rest_x = "–" if at_rest_x is None else f"{at_rest_x:.2f}"
         table.append(
             f"| {row['run']} | {row['success_rate']:.2f} | {counts} | {row['final_abs_x_median']:.2f} | {at_rest_x} | "
             f"{fired} |"

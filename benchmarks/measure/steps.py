@@ -98,6 +98,16 @@ def command_line() -> str:
     return " ".join(["python", str(script), *sys.argv[1:]])
 
 
+def read_page(out: Path, stem: str) -> tuple[list[dict], list[str]]:
+    """The rows and commands of ``<stem>.json`` in ``out`` (``write_page``), empty where there is none yet, so that a
+    measurement can add to its page; a page of one command keeps it as a string, of several as a list."""
+    path = out / f"{stem}.json"
+    if not path.exists():
+        return [], []
+    page = json.loads(path.read_text())
+    return page["rows"], page["commands"] if "commands" in page else [page["command"]]
+
+
 def write_page(
     out: Path, stem: str, command: str | list[str], rows: list[dict], title: str, intro: str, table: list[str]
 ) -> None:
