@@ -6,9 +6,10 @@ put first on PYTHONPATH) and this tree, on the same data.
   and the default one for an arm (joint states). Steps/s is 1 / (update + data time) as lerobot-train logs them,
   over the later half of the run (the frame cache is built in the first logging interval).
 - The 64×64 path: supervised training on a maze expert recording (video cameras), same data and steps.
-- Relabelling frames/s with the camera IDM, 1 and all worker processes, against a plain decode of the same videos
-  with as many processes (each decoding a contiguous share of every video whole, full size, one thread), and peak
-  memory (``/usr/bin/time``).
+- Relabelling frames/s with the camera IDM, 1 and all worker processes, with and without the pull toward the
+  observation (a fixed-cost fit after labelling), against a plain decode of the same videos with as many processes
+  (each decoding a contiguous share of every video whole, full size to RGB, one thread) by torchcodec and by PyAV,
+  and peak memory (``/usr/bin/time``).
 
     python benchmarks/measure/speed.py [--frames 2000] [--baseline d03e093] [--steps 300] [--work outputs/speed]
 
@@ -149,6 +150,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("benchmarks"))
     parser.add_argument("--only", nargs="+", default=["train", "maze", "relabel"], help="which measurements to run")
     parser.add_argument("--processes", type=int, nargs="+", help="relabelling workers (default: 1 and every core)")
+    parser.add_argument("--checkpoint", type=Path, help="the IDM to relabel with (default: --only train's camera IDM)")
     parser.add_argument("--decode", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--share", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument("--shares", type=int, default=1, help=argparse.SUPPRESS)
@@ -223,16 +225,19 @@ def main() -> None:
         keep(results, "maze", [row], command, ("data",))
 
     if "relabel" in args.only:
-        checkpoint = work / f"train-after-camera-{args.frames}" / CHECKPOINT
+        checkpoint = args.checkpoint or work / f"train-after-camera-{args.frames}" / CHECKPOINT
         rows = []
         backend = f"--dataset.video_backend={args.backend}"
         for workers in args.processes or sorted({1, cores}):
             plain = plain_decode_rate(root, args.backend, workers)
+            plain_pyav = plain_decode_rate(root, "pyav", workers)
             before_rate = relabel(checkpoint, root, before, backend, f"--num_workers={workers}")
             measured = relabel(checkpoint, root, after, backend, f"--num_workers={workers}")
+            unpulled = relabel(checkpoint, root, after, backend, f"--num_workers={workers}", "--pull_to_observation=0")
             rows.append({
                 "frames": args.frames, "backend": args.backend, "processes": workers, "machine": machine,
                 "relabel_frames_per_s": measured["frames_per_s"], "peak_rss_gb": measured["peak_rss_gb"],
+                "unpulled_frames_per_s": unpulled["frames_per_s"], "plain_decode_pyav_frames_per_s": plain_pyav,
                 "plain_decode_frames_per_s": plain, "ratio": measured["frames_per_s"] / plain,
                 "before_frames_per_s": before_rate["frames_per_s"], "before_peak_rss_gb": before_rate["peak_rss_gb"],
                 "baseline": args.baseline, "before_processes": workers,
@@ -257,6 +262,11 @@ def keep(results: dict, section: str, rows: list[dict], command: str, key: tuple
 def commands_of(results: dict, section: str) -> str:
     commands = results["commands"][section]
     return ", ".join(f"`{c}`" for c in ([commands] if isinstance(commands, str) else commands))
+
+
+def fmt(value: float | None, digits: int = 0) -> str:
+    """A figure to ``digits`` decimals; a dash where the row has none."""
+    return "—" if value is None else f"{value:.{digits}f}"
 
 
 def render(results: dict, page: Path) -> None:
@@ -291,18 +301,23 @@ def render(results: dict, page: Path) -> None:
     if "relabel" in results:
         lines += ["## Relabelling with the camera IDM", "", commands_of(results, "relabel"), "",
                   "Frames/s are the report's: decoding, labelling and the pull toward the observation, a fit of about "
-                  "9 s on one core whatever the dataset's size (on by default for this IDM). At 5,000 frames it is "
-                  "16% of the one-process run and 30% of the two-process one (29.5 s in all: 20.5 s without it, "
-                  "244 frames/s, 0.63× the plain decode).", "",
-                  "| frames | decoder | processes | machine | relabel frames/s | plain decode frames/s (same "
-                  "processes) | ratio | peak GB | before: revision, processes | before frames/s | before peak GB |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "6–9 s on one core whatever the dataset's size (on by default for this IDM); 'without the pull' is "
+                  "the same run with `--pull_to_observation=0`. The plain decodes convert every frame to RGB at full "
+                  "size, one thread a process, torchcodec's (the limit the issue names) and PyAV's (the faster on "
+                  "these AV1 files). Rows without the later columns were measured before they existed.", "",
+                  "| frames | decoder | processes | machine | relabel frames/s | without the pull | plain decode, "
+                  "torchcodec | plain decode, PyAV | ratio to torchcodec's | without the pull | ratio to PyAV's, "
+                  "without the pull | peak GB | before: revision, processes | before frames/s | before peak GB |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["relabel"]:
-            lines.append(f"| {r['frames']:,} | {r['backend']} | {r['processes']} | {r['machine']} | "
-                         f"{r['relabel_frames_per_s']:.0f} | {r['plain_decode_frames_per_s']:.0f} | "
-                         f"{r['ratio']:.2f} | {r['peak_rss_gb']:.2f} | {r.get('baseline', 'd03e093')}, "
-                         f"{r.get('before_processes', 1)} | {r['before_frames_per_s']:.0f} | "
-                         f"{r['before_peak_rss_gb']:.2f} |")  # fmt: skip
+            unpulled, plain = r.get("unpulled_frames_per_s"), r["plain_decode_frames_per_s"]
+            pyav = r.get("plain_decode_pyav_frames_per_s")
+            cells = [f"{r['frames']:,}", r["backend"], r["processes"], r["machine"], fmt(r["relabel_frames_per_s"]),
+                     fmt(unpulled), fmt(plain), fmt(pyav), fmt(r["ratio"], 2), fmt(unpulled and unpulled / plain, 2),
+                     fmt(unpulled and pyav and unpulled / pyav, 2), fmt(r["peak_rss_gb"], 2),
+                     f"{r.get('baseline', 'd03e093')}, {r.get('before_processes', 1)}",
+                     fmt(r["before_frames_per_s"]), fmt(r["before_peak_rss_gb"], 2)]  # fmt: skip
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
         lines.append("")
     page.write_text("\n".join(lines))
     print("\n".join(lines))

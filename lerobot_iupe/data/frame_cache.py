@@ -25,6 +25,7 @@ from tqdm.auto import tqdm
 from lerobot_iupe.data.child_processes import exit_with_parent
 from lerobot_iupe.data.episodes import EpisodeFrames, open_dataset
 from lerobot_iupe.data.storage import pid_alive
+from lerobot_iupe.data.video import CameraFrames
 
 log = logging.getLogger("lerobot_iupe")
 
@@ -50,7 +51,7 @@ def cache_key(meta, key: str, shape: tuple[int, int] | None, backend: str) -> st
     described = {
         "key": key,
         "shape": list(shape) if shape else None,
-        "backend": backend,
+        "decoder": CameraFrames.decoder_name(backend, shape),
         "fps": meta.fps,
         "feature": feature,
         "episodes": [[float(v) for v in episodes[c]] for c in columns],

@@ -1,11 +1,11 @@
 """Camera frames at the policy's working resolution: one resize rule (bilinear, antialiased) for frames already in
 memory (``resize_images``), and the same rule applied inside the video decoder for frames read from a dataset
-(``CameraFrames``), so that a 640×480 frame is never held, converted or copied at full size.
+(``CameraFrames``), so that a 640×480 frame is never resized in Python.
 
-torchcodec resizes with FFmpeg's filter graph (its ``Resize`` transform: bilinear, antialiased, within 0.02 levels
-of ``resize_images`` on average); PyAV with FFmpeg's scaler while it converts to RGB (``frame.reformat``, within 1.3
-levels). Decoding a 640×480 camera to 96×128 costs what decoding it at full size does (benchmarks/relabel.md);
-resizing a decoded 480×640 frame with torch costs about as much again.
+Frames at a working resolution take torchcodec's ``Resize`` steps (RGB at the stored size, then FFmpeg's bilinear
+scaler, within 0.02 levels of ``resize_images`` on average), run through PyAV whatever the backend: the same frames
+to within one level (99 % of values equal) in 0.65× torchcodec's time on a 640×480 AV1 camera, 1.55 against
+2.4 ms a frame on one core (benchmarks/speed.md). Frames at the stored size come from the backend asked for.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ class CameraFrames:
         path = meta.root / meta.get_video_file_path(episode, key)
         start_s = offset + (lo - first) / meta.fps
         count = hi - lo + 1
-        if self.backend == "torchcodec":
+        if self.backend == "torchcodec" and self.shape is None:
             frames = self._torchcodec(path, start_s, count)
         else:
             frames = self._pyav(path, start_s, count)
@@ -97,12 +97,15 @@ class CameraFrames:
                 old.close()
         return decoder
 
+    @staticmethod
+    def decoder_name(backend: str, shape: tuple[int, int] | None) -> str:
+        """What decodes frames read at ``shape`` with ``backend`` (a frame cache is named by it)."""
+        return backend if shape is None else "pyav, RGB then bilinear scale"
+
     def _torchcodec(self, path: Path, start_s: float, count: int) -> Tensor:
         from torchcodec.decoders import VideoDecoder
-        from torchcodec.transforms import Resize
 
-        transforms = [Resize(self.shape)] if self.shape else None
-        decoder = self._decoder(path, lambda: VideoDecoder(str(path), transforms=transforms, num_ffmpeg_threads=1))
+        decoder = self._decoder(path, lambda: VideoDecoder(str(path), num_ffmpeg_threads=1))
         first = round(start_s * decoder.metadata.average_fps)
         last = min(first + count, decoder.metadata.num_frames)
         return decoder.get_frames_in_range(first, last).data
@@ -123,13 +126,10 @@ class CameraFrames:
         for frame in container.decode(stream):
             if frame.time is None or frame.time < start_s - tolerance:
                 continue
-            if self.shape:
-                frame = frame.reformat(
-                    width=self.shape[1], height=self.shape[0], format="rgb24", interpolation="BILINEAR"
-                )
-                frames.append(frame.to_ndarray())
-            else:
-                frames.append(frame.to_ndarray(format="rgb24"))
+            frame = frame.reformat(format="rgb24")
+            if self.shape and (frame.height, frame.width) != self.shape:
+                frame = frame.reformat(width=self.shape[1], height=self.shape[0], interpolation="BILINEAR")
+            frames.append(frame.to_ndarray())
             if len(frames) == count:
                 break
         if not frames:
