@@ -141,19 +141,22 @@ def test_window_indices_clamp_into_the_episode():
 
 
 @pytest.mark.parametrize("offsets", [[-1, 0, 1, 2], [0, 1], [-3, -2, -1, 0, 1, 2, 3, 4]])
-def test_span_windows_are_the_windows_of_clamped_indices_without_copying_inner_spans(offsets):
+@pytest.mark.parametrize("batch", [2, 3, 32])
+def test_span_windows_are_the_windows_of_clamped_indices_copying_only_passes_at_an_edge(offsets, batch):
     bounds = [(0, 3), (3, 40)]
     frames = torch.arange(40 * 6, dtype=torch.float32).reshape(40, 2, 3)  # every value names its frame
     for span in label_spans(bounds, batch_size=7, offsets=offsets):
         t = np.arange(span.start, span.stop)
         index = window_indices(t, offsets, np.full(len(t), span.first), np.full(len(t), span.last))
         part = frames[span.lo : span.hi + 1]
-        windows = span_windows(part, span, offsets)
-        assert torch.equal(windows, part[torch.as_tensor(index - span.lo)])
-        if span.start + offsets[0] >= span.first and span.stop - 1 + offsets[-1] <= span.last:
-            assert windows.data_ptr() == part[span.start + offsets[0] - span.lo].data_ptr()  # a view of the frames
+        passes = span_windows(part, span, offsets, batch)
+        assert [len(p) for p in passes] == [len(c) for c in torch.arange(len(t)).split(batch)]
+        for windows, rows in zip(passes, torch.as_tensor(index - span.lo).split(batch), strict=True):
+            assert torch.equal(windows, part[rows])
+            if bool((rows[1:, 0] - rows[:-1, 0] == 1).all()) and bool((rows[:, 1:] - rows[:, :-1] == 1).all()):
+                assert windows.data_ptr() == part[int(rows[0, 0])].data_ptr()  # a view of the frames
     with pytest.raises(ValueError, match="consecutive offsets"):
-        span_windows(frames, label_spans(bounds, 7, [0, 2])[0], [0, 2])
+        span_windows(frames, label_spans(bounds, 7, [0, 2])[0], [0, 2], 32)
 
 
 def test_label_spans_cover_every_frame_with_a_successor_once_and_load_the_window():

@@ -214,21 +214,28 @@ def window_indices(t: np.ndarray, offsets: list[int], first: np.ndarray, last: n
     return np.clip(t + np.asarray(offsets, dtype=np.int64)[None, :], first, last)
 
 
-def span_windows(frames: Tensor, span: LabelSpan, offsets: list[int]) -> Tensor:
+def span_windows(frames: Tensor, span: LabelSpan, offsets: list[int], batch: int) -> list[Tensor]:
     """The windows (T, F, …) of ``span``'s frames t at consecutive ``offsets``, from its frames ``lo … hi``
-    (``frames``, (n, …)), edges clamped as ``window_indices`` clamps them: a strided view of one copy of the frames
-    (none away from the episode's edges). Gathering each window's frames wrote every frame F times: the IDM's passes
-    on two 640×480 cameras took 14–24% longer (benchmarks/measure/span_windows.py)."""
+    (``frames``, (n, …)), edges clamped as ``window_indices`` clamps them, in passes of at most ``batch`` windows:
+    each a strided view of the frames, a pass that reaches a clamped edge a view of its own frames gathered. Gathering
+    each window's frames wrote every frame F times: the IDM's passes on two 640×480 cameras took 14–24% longer
+    (benchmarks/measure/span_windows.py); gathering a whole span wherever it touched an episode's edge, as the first
+    version did, copied every frame of a short episode once."""
     if list(offsets) != list(range(offsets[0], offsets[0] + len(offsets))):
         raise ValueError(f"span_windows reads consecutive offsets, got {offsets}")
     rows = np.clip(np.arange(span.start + offsets[0], span.stop + offsets[-1]), span.first, span.last) - span.lo
-    if rows[0] + len(rows) - 1 == rows[-1]:  # no edge repeated: the frames themselves
-        padded = frames[rows[0] : rows[-1] + 1].contiguous()
-    else:
-        padded = frames[torch.as_tensor(rows, device=frames.device)]
-    size = padded[0].numel()
-    shape = (span.stop - span.start, len(offsets), *padded.shape[1:])
-    return padded.as_strided(shape, (size, size, *padded.stride()[1:]))
+    frames = frames.contiguous()
+    size, count = frames[0].numel(), len(offsets)
+    passes = []
+    for first in range(0, span.stop - span.start, batch):
+        windows = min(batch, span.stop - span.start - first)
+        needed = rows[first : first + windows + count - 1]
+        if needed[0] + len(needed) - 1 == needed[-1]:  # no edge repeated: the frames themselves
+            padded = frames[needed[0] : needed[-1] + 1]
+        else:
+            padded = frames[torch.as_tensor(needed, device=frames.device)]
+        passes.append(padded.as_strided((windows, count, *padded.shape[1:]), (size, size, *padded.stride()[1:])))
+    return passes
 
 
 class ExpertFrames:

@@ -38,8 +38,8 @@ def span_outputs(
 ) -> torch.Tensor:
     """The IDM's outputs (float32, on the CPU) for the frames of ``span``, whose decoded keys are ``parts``, with
     the references after them when ``references`` (``labelling_pass``)."""
-    windows = span_windows(reader.layout.join(parts).to(device), span, policy.config.idm_window)
-    return torch.cat([labelling_pass(policy, window, references) for window in windows.split(IDM_BATCH)])
+    passes = span_windows(reader.layout.join(parts).to(device), span, policy.config.idm_window, IDM_BATCH)
+    return torch.cat([labelling_pass(policy, window, references) for window in passes])
 
 
 def labelling_pass(policy: IUPEPolicy, window: torch.Tensor, references: bool = True) -> torch.Tensor:
