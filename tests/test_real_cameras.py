@@ -170,6 +170,27 @@ def test_the_generator_waits_for_lerobots_encoder_so_every_video_holds_its_episo
                 assert sum(1 for _ in container.decode(video=0)) == written.meta.total_frames
 
 
+@pytest.mark.parametrize("backend", ["pyav", "torchcodec"])
+def test_frames_at_the_working_size_are_lerobots_frames_of_the_same_time_in_rgb(arm_labelled, backend):
+    """The decoder-side scaler gives (n, 3, 96, 128) uint8 frames that match LeRobot's own decoded frames of the same
+    index, resized by the policy's rule, within a few levels; the neighbouring frames and the channels reversed (BGR)
+    are farther off. One decoding thread per process, whatever the codec."""
+    dataset = LeRobotDataset("local/arm-480", root=arm_labelled, video_backend="pyav")
+    key, episode = CAMERAS[1], 1
+    first, end = (int(dataset.meta.episodes[episode][c]) for c in ("dataset_from_index", "dataset_to_index"))
+    camera = CameraFrames(dataset.meta, backend, (96, 128))
+    decoded = camera.frames(key, episode, first + 4, end - 5).float()
+    assert decoded.shape == (end - first - 8, 3, 96, 128)
+    lerobots = torch.stack([dataset[i][key] for i in range(first, end)]) * 255  # float RGB 0–1, full size
+    resized = resize_images(lerobots, (96, 128))
+    same = (decoded - resized[4:-4]).abs().mean()
+    assert same < 3.0
+    assert min((decoded - resized[4 + shift : len(resized) - 4 + shift]).abs().mean() for shift in (-1, 1)) > same
+    assert (decoded.flip(1) - resized[4:-4]).abs().mean() > 3 * same
+    container = camera._decoders[next(iter(camera._decoders))]
+    assert container.streams.video[0].codec_context.thread_count == 1
+
+
 def test_the_frame_cache_is_reused_and_rebuilt_when_the_dataset_changes(data_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("LEROBOT_IUPE_CACHE", str(tmp_path / "cache"))
     root = tmp_path / "arm"

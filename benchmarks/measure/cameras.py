@@ -129,6 +129,7 @@ def plain_decode_rate(root: Path, backend: str) -> float:
             container = av.open(str(path))
             stream = container.streams.video[0]
             stream.thread_type = "NONE"
+            stream.codec_context.thread_count = 1  # libdav1d ignores thread_type
             for frame in container.decode(stream):
                 frame.to_ndarray(format="rgb24")
                 frames += 1

@@ -10,6 +10,9 @@ put first on PYTHONPATH) and this tree, on the same data.
   observation (a fixed-cost fit after labelling), against a plain decode of the same videos with as many processes
   (each decoding a contiguous share of every video whole, full size to RGB, one thread) by torchcodec and by PyAV,
   and peak memory (``/usr/bin/time``).
+- Decoder costs (``--only decoders``): ms per frame of one 640×480 camera video on one thread, in a fresh process per
+  rule, rounds alternated: full-size RGB by torchcodec and PyAV, torchcodec's ``Resize`` to the working size, the
+  same steps through PyAV (RGB at full size, then scaled), and PyAV's one scaler pass (``data.video.CameraFrames``).
 
     python benchmarks/measure/speed.py [--frames 2000] [--baseline d03e093] [--steps 300] [--work outputs/speed]
 
@@ -107,6 +110,7 @@ def plain_decode(root: Path, backend: str, share: int, shares: int) -> int:
             container = av.open(str(path))
             stream = container.streams.video[0]
             stream.thread_type = "NONE"
+            stream.codec_context.thread_count = 1  # libdav1d ignores thread_type
             total = stream.frames
             lo, hi = total * share // shares, total * (share + 1) // shares
             container.seek(int(lo / stream.average_rate / stream.time_base), stream=stream, backward=True)
@@ -131,6 +135,59 @@ def plain_decode_rate(root: Path, backend: str, processes: int) -> float:
     return sum(int(f) for f, _ in counted) / cameras / max(float(t) for _, t in counted)
 
 
+DECODER_RULES = {
+    "torchcodec, full-size RGB": "tc-full",
+    "torchcodec's Resize (RGB at full size, then scaled)": "tc-resize",
+    "PyAV, full-size RGB": "av-full",
+    "PyAV, RGB at full size, then scaled (torchcodec's steps)": "av-two-pass",
+    "PyAV, one scaler pass to RGB at the working size (the package's rule)": "av-one-pass",
+}
+
+
+def decode_with_rule(path: Path, rule: str, shape: tuple[int, int], count: int) -> float:
+    """Ms per frame of the first ``count`` frames of ``path`` decoded by ``rule`` on one thread."""
+    import av
+    import torch
+
+    torch.set_num_threads(1)
+    start = time.perf_counter()
+    if rule.startswith("tc"):
+        from torchcodec.decoders import VideoDecoder
+        from torchcodec.transforms import Resize
+
+        decoder = VideoDecoder(
+            str(path), num_ffmpeg_threads=1, transforms=[Resize(shape)] if rule == "tc-resize" else None
+        )
+        for first in range(0, count, 250):
+            decoder.get_frames_in_range(first, min(first + 250, count))
+    else:
+        container = av.open(str(path))
+        stream = container.streams.video[0]
+        stream.thread_type, stream.codec_context.thread_count = "NONE", 1
+        for n, frame in enumerate(container.decode(stream), 1):
+            if rule == "av-full":
+                frame.to_ndarray(format="rgb24")
+            elif rule == "av-two-pass":
+                rgb = frame.reformat(format="rgb24")
+                rgb.reformat(width=shape[1], height=shape[0], interpolation="BILINEAR").to_ndarray()
+            else:
+                frame.reformat(width=shape[1], height=shape[0], format="rgb24", interpolation="BILINEAR").to_ndarray()
+            if n == count:
+                break
+    return (time.perf_counter() - start) / count * 1e3
+
+
+def decoder_costs(root: Path, rounds: int = 3, count: int = 1000) -> dict:
+    """Median ms per frame of each rule over ``rounds`` alternated fresh processes, on the front camera's video."""
+    path = sorted((root / "videos").rglob("*.mp4"))[0]
+    times: dict[str, list[float]] = {name: [] for name in DECODER_RULES}
+    for _ in range(rounds):
+        for name, rule in DECODER_RULES.items():
+            command = [sys.executable, __file__, "--decode", str(path), "--rule", rule, "--count", str(count)]
+            times[name].append(float(subprocess.run(command, capture_output=True, text=True, check=True).stdout))
+    return {name: float(np.median(values)) for name, values in times.items()}
+
+
 def relabel(checkpoint: Path, root: Path, env: dict, *extra: str) -> dict:
     output, seconds, peak = run(
         [str(BIN / "lerobot-iupe-relabel"), f"--policy.path={checkpoint}", f"--dataset.repo_id=local/{root.name}",
@@ -153,8 +210,13 @@ def main() -> None:
     parser.add_argument("--checkpoint", type=Path, help="the IDM to relabel with (default: --only train's camera IDM)")
     parser.add_argument("--decode", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--share", type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument("--rule", help=argparse.SUPPRESS)
+    parser.add_argument("--count", type=int, default=1000, help=argparse.SUPPRESS)
     parser.add_argument("--shares", type=int, default=1, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.decode and args.rule:
+        print(decode_with_rule(args.decode, args.rule, (96, 128), args.count))
+        return
     if args.decode:
         import av  # noqa: F401  (imported before the clock starts)
         import torch  # noqa: F401
@@ -223,6 +285,14 @@ def main() -> None:
         row["relabel_speedup"] = row["after_relabel"]["frames_per_s"] / row["before_relabel"]["frames_per_s"]
         print(row, flush=True)
         keep(results, "maze", [row], command, ("data",))
+
+    if "decoders" in args.only:
+        costs = decoder_costs(root)
+        rows = [
+            {"frames": args.frames, "machine": machine, "rule": name, "ms_per_frame": ms} for name, ms in costs.items()
+        ]
+        print(rows, flush=True)
+        keep(results, "decoders", rows, command, ("frames", "rule"))
 
     if "relabel" in args.only:
         checkpoint = args.checkpoint or work / f"train-after-camera-{args.frames}" / CHECKPOINT
@@ -318,6 +388,15 @@ def render(results: dict, page: Path) -> None:
                      f"{r.get('baseline', 'd03e093')}, {r.get('before_processes', 1)}",
                      fmt(r["before_frames_per_s"]), fmt(r["before_peak_rss_gb"], 2)]  # fmt: skip
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+        lines.append("")
+    if "decoders" in results:
+        lines += ["## What a frame costs to decode", "", commands_of(results, "decoders"), "",
+                  "One 640×480 AV1 camera (the recording's front camera), the first 1,000 frames, one thread (PyAV's "
+                  "`thread_count=1`: libdav1d ignores `thread_type`, and uncounted it starts a thread per core), a "
+                  "fresh process per rule, the median of 3 alternated rounds; 96×128 is the working size.", "",
+                  "| frames | machine | rule | ms per frame |", "|---|---|---|---|"]  # fmt: skip
+        for r in results["decoders"]:
+            lines.append(f"| {r['frames']:,} | {r['machine']} | {r['rule']} | {r['ms_per_frame']:.2f} |")
         lines.append("")
     page.write_text("\n".join(lines))
     print("\n".join(lines))

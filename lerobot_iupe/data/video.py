@@ -1,11 +1,13 @@
 """Camera frames at the policy's working resolution: one resize rule (bilinear, antialiased) for frames already in
-memory (``resize_images``), and the same rule applied inside the video decoder for frames read from a dataset
-(``CameraFrames``), so that a 640×480 frame is never resized in Python.
+memory (``resize_images``), and the video decoder's own scaler for frames read from a dataset (``CameraFrames``), so
+that a 640×480 frame is never held, converted or copied at full size.
 
-Frames at a working resolution take torchcodec's ``Resize`` steps (RGB at the stored size, then FFmpeg's bilinear
-scaler, within 0.02 levels of ``resize_images`` on average), run through PyAV whatever the backend: the same frames
-to within one level (99 % of values equal) in 0.65× torchcodec's time on a 640×480 AV1 camera, 1.55 against
-2.4 ms a frame on one core (benchmarks/speed.md). Frames at the stored size come from the backend asked for.
+Frames at a working resolution are decoded by PyAV whatever the backend, converted to RGB and scaled in one pass of
+FFmpeg's scaler (``frame.reformat``), on one thread. Per 640×480 AV1 frame on one core: 1.99 ms, against 2.60 for
+torchcodec's ``Resize`` (RGB at full size, then scaled: 2.55 ms through PyAV), 2.23 for torchcodec's full-size decode
+and 1.89 for PyAV's (benchmarks/speed.md). The two rules give frames 1.1 levels apart on average (torchcodec's is
+within 0.02 of ``resize_images``); training's frame cache and relabelling read the same decoder, so the IDM labels
+the frames it was trained on. Frames at the stored size come from the backend asked for.
 """
 
 from __future__ import annotations
@@ -100,7 +102,7 @@ class CameraFrames:
     @staticmethod
     def decoder_name(backend: str, shape: tuple[int, int] | None) -> str:
         """What decodes frames read at ``shape`` with ``backend`` (a frame cache is named by it)."""
-        return backend if shape is None else "pyav, RGB then bilinear scale"
+        return backend if shape is None else "pyav, one bilinear pass to RGB"
 
     def _torchcodec(self, path: Path, start_s: float, count: int) -> Tensor:
         from torchcodec.decoders import VideoDecoder
@@ -115,7 +117,9 @@ class CameraFrames:
 
         def open_file():
             container = av.open(str(path))
-            container.streams.video[0].thread_type = "NONE"  # one core per decoding process: scale out with processes
+            stream = container.streams.video[0]
+            stream.thread_type = "NONE"  # one core per decoding process: scale out with processes
+            stream.codec_context.thread_count = 1  # libdav1d ignores thread_type: uncounted, it starts one per core
             return container
 
         container = self._decoder(path, open_file)
@@ -126,10 +130,13 @@ class CameraFrames:
         for frame in container.decode(stream):
             if frame.time is None or frame.time < start_s - tolerance:
                 continue
-            frame = frame.reformat(format="rgb24")
-            if self.shape and (frame.height, frame.width) != self.shape:
-                frame = frame.reformat(width=self.shape[1], height=self.shape[0], interpolation="BILINEAR")
-            frames.append(frame.to_ndarray())
+            if self.shape:
+                frame = frame.reformat(
+                    width=self.shape[1], height=self.shape[0], format="rgb24", interpolation="BILINEAR"
+                )
+                frames.append(frame.to_ndarray())
+            else:
+                frames.append(frame.to_ndarray(format="rgb24"))
             if len(frames) == count:
                 break
         if not frames:

@@ -22,7 +22,9 @@ class CheckpointRef:
 
 @dataclass
 class RelabelDataset(WrittenDataset):
-    # Video decoder: "pyav" or "torchcodec"; default: torchcodec where it loads, else pyav (LeRobot's rule).
+    # Video decoder of full-size frames and LeRobot's reader: "pyav" or "torchcodec"; default: torchcodec where it
+    # loads, else pyav (LeRobot's rule). Frames the IDM reads at a smaller working resolution are decoded by PyAV
+    # and scaled by FFmpeg's scaler either way, as training's frame cache reads them (0.77x torchcodec's time).
     video_backend: str | None = None
 
 
