@@ -374,7 +374,11 @@ def render(results: dict, page: Path) -> None:
                   "6–9 s on one core whatever the dataset's size (on by default for this IDM); 'without the pull' is "
                   "the same run with `--pull_to_observation=0`. The plain decodes convert every frame to RGB at full "
                   "size, one thread a process, torchcodec's (the limit the issue names) and PyAV's (the faster on "
-                  "these AV1 files). Rows without the later columns were measured before they existed.", "",
+                  "these AV1 files). Rows without the later columns were measured before they existed. The c96015a "
+                  "rows relabel with a camera IDM trained on the same recording by `lerobot-train --policy.type=iupe "
+                  "--policy.supervised=true --policy.joint_state_columns=[] --policy.idm_only=true --steps=300` "
+                  "(`--checkpoint`); before that revision, PyAV's decoder started a thread per core in every process "
+                  "(libdav1d ignores `thread_type`).", "",
                   "| frames | decoder | processes | machine | relabel frames/s | without the pull | plain decode, "
                   "torchcodec | plain decode, PyAV | ratio to torchcodec's | without the pull | ratio to PyAV's, "
                   "without the pull | peak GB | before: revision, processes | before frames/s | before peak GB |",

@@ -3,9 +3,9 @@ memory (``resize_images``), and the video decoder's own scaler for frames read f
 that a 640×480 frame is never held, converted or copied at full size.
 
 Frames at a working resolution are decoded by PyAV whatever the backend, converted to RGB and scaled in one pass of
-FFmpeg's scaler (``frame.reformat``), on one thread. Per 640×480 AV1 frame on one core: 1.99 ms, against 2.60 for
-torchcodec's ``Resize`` (RGB at full size, then scaled: 2.55 ms through PyAV), 2.23 for torchcodec's full-size decode
-and 1.89 for PyAV's (benchmarks/speed.md). The two rules give frames 1.1 levels apart on average (torchcodec's is
+FFmpeg's scaler (``frame.reformat``), on one thread. Per 640×480 AV1 frame on one core: 2.07 ms, against 2.68 for
+torchcodec's ``Resize`` (RGB at full size, then scaled: 2.58 ms through PyAV), 2.43 for torchcodec's full-size decode
+and 1.92 for PyAV's (benchmarks/speed.md). The two rules give frames 1.1–1.4 levels apart on average (torchcodec's is
 within 0.02 of ``resize_images``); training's frame cache and relabelling read the same decoder, so the IDM labels
 the frames it was trained on. Frames at the stored size come from the backend asked for.
 """
