@@ -31,7 +31,7 @@ from lerobot_iupe.data.arm_writer import write_arm_recording
 
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import update  # noqa: E402
-from steps import BIN, command_line  # noqa: E402
+from steps import BIN, command_line, printed_r2  # noqa: E402
 
 CHECKPOINT = "checkpoints/last/pretrained_model"
 EPISODE_FRAMES = 250
@@ -175,8 +175,7 @@ def main() -> None:
             str(BIN / "lerobot-iupe-relabel"), f"--policy.path={checkpoint}", "--dataset.repo_id=local/held",
             f"--dataset.root={held_out}", "--dry_run=true", env=env,
         )  # fmt: skip
-        per_joint = re.search(r"R² per dimension: (.*)", scored["output"]).group(1)
-        r2 = {name: float(value) for name, value in re.findall(r"([\w.]+)=([-\d.]+)", per_joint)}
+        r2 = printed_r2(scored["output"])
         row = {
             "frames": frames, "steps": args.steps, "train_steps_per_s": 1.0 / step_s,
             "train_seconds": train["seconds"], "train_peak_rss_gb": train["peak_rss_gb"],

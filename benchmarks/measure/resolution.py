@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from cameras import CHECKPOINT, measured  # noqa: E402
 from relabel_report import update  # noqa: E402
-from steps import BIN, command_line  # noqa: E402
+from steps import BIN, command_line, printed_r2  # noqa: E402
 
 from lerobot_iupe.data.arm_recording import CAMERAS  # noqa: E402
 
@@ -60,8 +60,7 @@ def main() -> None:
             str(BIN / "lerobot-iupe-relabel"), f"--policy.path={out / CHECKPOINT}", "--dataset.repo_id=local/held",
             f"--dataset.root={held_out}", "--dry_run=true", env=env,
         )  # fmt: skip
-        per_joint = re.search(r"R² per dimension: (.*)", scored["output"]).group(1)
-        r2 = [float(v) for v in re.findall(r"=([-\d.]+)", per_joint)]
+        r2 = list(printed_r2(scored["output"]).values())
         relabel = measured(
             str(BIN / "lerobot-iupe-relabel"), f"--policy.path={out / CHECKPOINT}", "--dataset.repo_id=local/x",
             f"--dataset.root={root}", "--dry_run=true", "--dataset.video_backend=torchcodec", env=env,

@@ -4,8 +4,10 @@ page with its rows. Training and evaluation themselves are the package's (``lero
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -76,6 +78,17 @@ def dry_run(checkpoint: Path, root: Path, **options):
 
     dataset = RelabelDataset(repo_id=f"local/{root.name}", root=str(root), video_backend="pyav")
     return relabel(RelabelConfig(policy=CheckpointRef(path=str(checkpoint)), dataset=dataset, dry_run=True, **options))
+
+
+def printed_r2(output: str) -> dict[str, float]:
+    """The IDM's R² per action dimension from a relabel's printed report: its one line ("R² per dimension:
+    a=0.99, …") or its table beside the references (the IDM's column)."""
+    line = re.search(r"R² per dimension: (.*)", output)
+    if line:
+        return {name: float(value) for name, value in re.findall(r"([\w.]+)=([-\d.]+)", line.group(1))}
+    table = output[output.index("R² per dimension") :].splitlines()[1:]
+    rows = (re.match(r"\s+([\w.]+)\s+(-?[\d.]+)\s", row) for row in table)
+    return {row.group(1): float(row.group(2)) for row in itertools.takewhile(bool, rows)}
 
 
 def parse_with_folders(parser, work: str, out: str = "benchmarks"):
