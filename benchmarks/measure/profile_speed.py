@@ -94,10 +94,12 @@ def main() -> None:
                          args.top)  # fmt: skip
         relabel = [str(BIN / "lerobot-iupe-relabel"), f"--policy.path={out / CHECKPOINT}",
                    f"--dataset.repo_id=local/{root.name}", f"--dataset.root={root}", "--dry_run=true"]  # fmt: skip
-        if code is None:
+        config = (code or REPO) / "lerobot_iupe/relabel/config.py"
+        in_process = config.exists() and "num_workers" in config.read_text()
+        if in_process:  # revisions before --num_workers decode in a process of their own
             relabel.append("--num_workers=0")
         stats = profile(relabel, env, work / f"relabel-{name}.prof")
-        where = "in one process" if code is None else "labelling; its one decoding process is not profiled"
+        where = "in one process" if in_process else "labelling; its one decoding process is not profiled"
         lines += summary(f"Relabelling, {name} ({args.frames:,} frames, {where})", " ".join(relabel[1:]), stats,
                          args.top)  # fmt: skip
     args.out.mkdir(parents=True, exist_ok=True)
