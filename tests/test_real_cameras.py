@@ -189,6 +189,8 @@ def test_frames_at_the_working_size_are_lerobots_frames_of_the_same_time_in_rgb(
     assert (decoded.flip(1) - resized[4:-4]).abs().mean() > 3 * same
     container = camera._decoders[next(iter(camera._decoders))]
     assert container.streams.video[0].codec_context.thread_count == 1
+    # at the stored size the backend asked for decodes (torchcodec's own frames, faster on small videos)
+    assert CameraFrames.decoder_name(backend, (480, 640), (480, 640)) == backend
 
 
 def test_the_frame_cache_is_reused_and_rebuilt_when_the_dataset_changes(data_dir, tmp_path, monkeypatch):

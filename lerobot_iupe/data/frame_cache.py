@@ -51,7 +51,7 @@ def cache_key(meta, key: str, shape: tuple[int, int] | None, backend: str) -> st
     described = {
         "key": key,
         "shape": list(shape) if shape else None,
-        "decoder": CameraFrames.decoder_name(backend, shape),
+        "decoder": CameraFrames.decoder_name(backend, shape, tuple(feature["shape"][:2])),
         "fps": meta.fps,
         "feature": feature,
         "episodes": [[float(v) for v in episodes[c]] for c in columns],

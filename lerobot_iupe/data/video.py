@@ -2,12 +2,13 @@
 memory (``resize_images``), and the video decoder's own scaler for frames read from a dataset (``CameraFrames``), so
 that a 640×480 frame is never held, converted or copied at full size.
 
-Frames at a working resolution are decoded by PyAV whatever the backend, converted to RGB and scaled in one pass of
-FFmpeg's scaler (``frame.reformat``), on one thread. Per 640×480 AV1 frame on one core: 2.07 ms, against 2.68 for
-torchcodec's ``Resize`` (RGB at full size, then scaled: 2.58 ms through PyAV), 2.43 for torchcodec's full-size decode
-and 1.92 for PyAV's (benchmarks/speed.md). The two rules give frames 1.1–1.4 levels apart on average (torchcodec's is
-within 0.02 of ``resize_images``); training's frame cache and relabelling read the same decoder, so the IDM labels
-the frames it was trained on. Frames at the stored size come from the backend asked for.
+Frames scaled to a working resolution are decoded by PyAV whatever the backend, converted to RGB and scaled in
+one pass of FFmpeg's scaler (``frame.reformat``), on one thread. Per 640×480 AV1 frame on one core: 2.07 ms,
+against 2.68 for torchcodec's ``Resize`` (RGB at full size, then scaled: 2.58 ms through PyAV), 2.43 for
+torchcodec's full-size decode and 1.92 for PyAV's (benchmarks/speed.md). The two rules give frames 1.1–1.4 levels
+apart on average (torchcodec's is within 0.02 of ``resize_images``); training's frame cache and relabelling read
+the same decoder, so the IDM labels the frames it was trained on. Frames at the stored size come from the backend
+asked for (torchcodec's 1.2–1.5× PyAV's frames/s on 64×64 maze episodes).
 """
 
 from __future__ import annotations
@@ -77,7 +78,8 @@ class CameraFrames:
         path = meta.root / meta.get_video_file_path(episode, key)
         start_s = offset + (lo - first) / meta.fps
         count = hi - lo + 1
-        if self.backend == "torchcodec" and self.shape is None:
+        stored = tuple(int(v) for v in meta.features[key]["shape"][:2])
+        if self.decoder_name(self.backend, self.shape, stored) == "torchcodec":
             frames = self._torchcodec(path, start_s, count)
         else:
             frames = self._pyav(path, start_s, count)
@@ -100,9 +102,10 @@ class CameraFrames:
         return decoder
 
     @staticmethod
-    def decoder_name(backend: str, shape: tuple[int, int] | None) -> str:
-        """What decodes frames read at ``shape`` with ``backend`` (a frame cache is named by it)."""
-        return backend if shape is None else "pyav, one bilinear pass to RGB"
+    def decoder_name(backend: str, shape: tuple[int, int] | None, stored: tuple[int, int]) -> str:
+        """What decodes frames stored at ``stored`` (h, w) read at ``shape`` with ``backend`` (a frame cache is
+        named by it): the backend at the stored size, PyAV's scaler at any other."""
+        return backend if shape is None or tuple(shape) == tuple(stored) else "pyav, one bilinear pass to RGB"
 
     def _torchcodec(self, path: Path, start_s: float, count: int) -> Tensor:
         from torchcodec.decoders import VideoDecoder
