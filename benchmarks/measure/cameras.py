@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_iupe.data.arm_writer import write_arm_recording
+from lerobot_iupe.data.video import open_video
 
 sys.path.insert(0, str(Path(__file__).parent))
 from relabel_report import update  # noqa: E402
@@ -110,7 +111,6 @@ def recording(work: Path, name: str, episodes: int, seed: int) -> Path:
 
 def plain_decode_rate(root: Path, backend: str) -> float:
     """Dataset frames/s of decoding every camera's videos whole at full size, in this process, one thread."""
-    import av
     import torch
 
     torch.set_num_threads(1)
@@ -126,11 +126,8 @@ def plain_decode_rate(root: Path, backend: str) -> float:
             for first in range(0, total, 256):
                 frames += len(decoder.get_frames_in_range(first, min(first + 256, total)).data)
         else:
-            container = av.open(str(path))
-            stream = container.streams.video[0]
-            stream.thread_type = "NONE"
-            stream.codec_context.thread_count = 1  # libdav1d ignores thread_type
-            for frame in container.decode(stream):
+            container = open_video(path)
+            for frame in container.decode(container.streams.video[0]):
                 frame.to_ndarray(format="rgb24")
                 frames += 1
     return frames / cameras / (time.perf_counter() - start)

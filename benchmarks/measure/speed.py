@@ -92,8 +92,9 @@ def train(root: Path, out: Path, steps: int, env: dict, *extra: str) -> dict:
 def plain_decode(root: Path, backend: str, share: int, shares: int) -> int:
     """Decode share ``share`` of ``shares`` (contiguous frames) of every video of ``root`` whole at full size on one
     thread; the frames decoded."""
-    import av
     import torch
+
+    from lerobot_iupe.data.video import open_video
 
     torch.set_num_threads(1)
     frames = 0
@@ -107,10 +108,8 @@ def plain_decode(root: Path, backend: str, share: int, shares: int) -> int:
             for first in range(lo, hi, 256):
                 frames += len(decoder.get_frames_in_range(first, min(first + 256, hi)).data)
         else:
-            container = av.open(str(path))
+            container = open_video(path)
             stream = container.streams.video[0]
-            stream.thread_type = "NONE"
-            stream.codec_context.thread_count = 1  # libdav1d ignores thread_type
             total = stream.frames
             lo, hi = total * share // shares, total * (share + 1) // shares
             container.seek(int(lo / stream.average_rate / stream.time_base), stream=stream, backward=True)
@@ -146,8 +145,9 @@ DECODER_RULES = {
 
 def decode_with_rule(path: Path, rule: str, shape: tuple[int, int], count: int) -> float:
     """Ms per frame of the first ``count`` frames of ``path`` decoded by ``rule`` on one thread."""
-    import av
     import torch
+
+    from lerobot_iupe.data.video import open_video
 
     torch.set_num_threads(1)
     start = time.perf_counter()
@@ -161,10 +161,8 @@ def decode_with_rule(path: Path, rule: str, shape: tuple[int, int], count: int) 
         for first in range(0, count, 250):
             decoder.get_frames_in_range(first, min(first + 250, count))
     else:
-        container = av.open(str(path))
-        stream = container.streams.video[0]
-        stream.thread_type, stream.codec_context.thread_count = "NONE", 1
-        for n, frame in enumerate(container.decode(stream), 1):
+        container = open_video(path)
+        for n, frame in enumerate(container.decode(container.streams.video[0]), 1):
             if rule == "av-full":
                 frame.to_ndarray(format="rgb24")
             elif rule == "av-two-pass":
@@ -221,6 +219,8 @@ def main() -> None:
         import av  # noqa: F401  (imported before the clock starts)
         import torch  # noqa: F401
         import torchcodec.decoders  # noqa: F401
+
+        import lerobot_iupe.data.video  # noqa: F401
 
         start = time.perf_counter()
         frames = plain_decode(args.decode, args.backend, args.share, args.shares)

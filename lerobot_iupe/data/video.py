@@ -45,6 +45,18 @@ def working_shape(height: int, width: int, longest_side: int) -> tuple[int, int]
     return max(1, round(height * scale)), max(1, round(width * scale))
 
 
+def open_video(path: Path | str):
+    """A video file opened by PyAV to decode on one thread, so that processes scale out over the cores: ``thread_type``
+    alone does not reach libdav1d, which starts a thread per core unless ``thread_count`` is set."""
+    import av
+
+    container = av.open(str(path))
+    stream = container.streams.video[0]
+    stream.thread_type = "NONE"
+    stream.codec_context.thread_count = 1
+    return container
+
+
 def default_video_backend() -> str:
     """LeRobot's rule (torchcodec where it loads, else pyav), minus its page-long traceback when it does not."""
     from lerobot.utils.import_utils import get_safe_default_video_backend
@@ -116,16 +128,8 @@ class CameraFrames:
         return decoder.get_frames_in_range(first, last).data
 
     def _pyav(self, path: Path, start_s: float, count: int) -> Tensor:
-        import av
 
-        def open_file():
-            container = av.open(str(path))
-            stream = container.streams.video[0]
-            stream.thread_type = "NONE"  # one core per decoding process: scale out with processes
-            stream.codec_context.thread_count = 1  # libdav1d ignores thread_type: uncounted, it starts one per core
-            return container
-
-        container = self._decoder(path, open_file)
+        container = self._decoder(path, lambda: open_video(path))
         stream = container.streams.video[0]
         tolerance = 0.5 / self.meta.fps
         container.seek(max(0, int((start_s - tolerance) / stream.time_base)), stream=stream, backward=True)
