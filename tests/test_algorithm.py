@@ -8,6 +8,7 @@ from lerobot_iupe.policy.algorithm import (
     apportion,
     build_sampled_set,
     choose_actions,
+    frame_differences,
     held_out_split,
     performance,
     sampling_counts,
@@ -207,3 +208,14 @@ def test_an_episode_s_windows_repeat_its_first_and_last_frames():
     assert windows.windows[:, :, 0].tolist() == [[0, 0, 1, 2], [0, 1, 2, 3], [1, 2, 3, 3]]
     assert windows.states[:, 0].tolist() == [0, 1, 2] and windows.next_states[:, 0].tolist() == [1, 2, 3]
     assert windows.take(np.array([2])).windows[0, :, 0].tolist() == [1, 2, 3, 3]
+
+
+def test_frame_differences_are_the_reference_frame_then_each_other_frame_minus_it_in_order():
+    values = torch.arange(2 * 5 * 4, dtype=torch.float32).reshape(2, 5, 4) ** 2  # squares: each difference differs
+    strided = values[:, :, 1:3]  # a view, as the IDM's windows are
+    picked = frame_differences(strided, 2, [0, 2, 4])
+    expected = torch.stack([strided[:, 2], strided[:, 0] - strided[:, 2], strided[:, 4] - strided[:, 2]], dim=1)
+    assert picked.is_contiguous() and torch.equal(picked, expected)
+    every = frame_differences(strided, 1)
+    now = strided[:, 1:2]
+    assert torch.equal(every, torch.cat([now, strided[:, :1] - now, strided[:, 2:] - now], dim=1))

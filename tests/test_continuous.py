@@ -6,7 +6,7 @@ import torch
 
 from lerobot_iupe.data.transitions import Transitions
 from lerobot_iupe.policy.algorithm import ActionCells, build_sampled_set, r_squared, success_action_distribution
-from lerobot_iupe.policy.networks import CategoricalHead, GaussianHead
+from lerobot_iupe.policy.heads import CategoricalHead, GaussianHead
 
 LOW, HIGH = np.array([-1.0, 0.0]), np.array([1.0, 2.0])
 CORNERS = np.array([[-0.9, 0.1], [0.9, 0.1], [-0.9, 1.9], [0.9, 1.9]])

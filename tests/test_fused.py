@@ -192,6 +192,46 @@ def test_the_fused_idm_reads_each_keys_frame_and_its_differences_as_the_general_
     assert not torch.allclose(policy.idm_window_output(moved), expected)
 
 
+@pytest.mark.parametrize("fps, order", [(5, (TOP, SIDE, OBS_STATE)), (30, (TOP, OBS_STATE, SIDE))])
+def test_the_camera_network_reads_its_frames_and_their_differences_as_they_are_packed(fps, order):
+    """The linear-first IDM's camera network reads [x_t, x_j − x_t …] of its cameras' frames at ``camera_offsets``,
+    cut per camera as it takes the differences, from views of the window where it can (frames t, t+1, t+2 at 5
+    fps; cameras side by side) and gathered where it cannot (t, t+1, t+11 at 30 fps; the state between the
+    cameras in ``--policy.observation_keys``); with and without gradients (the image encoder's stem then reads
+    another memory format)."""
+    features = {TOP: PolicyFeature(type=FeatureType.VISUAL, shape=(3, 8, 8)),
+                SIDE: PolicyFeature(type=FeatureType.VISUAL, shape=(3, 8, 8)),
+                OBS_STATE: PolicyFeature(type=FeatureType.STATE, shape=(2,))}  # fmt: skip
+    config = IUPEConfig(
+        input_features=features, observation_keys=list(order), action_low=[-1.0] * 3, action_high=[1.0] * 3,
+        device="cpu", supervised=True, joint_state_columns=[0, 1, 0], idm_joint_lags=[0, 0, 0], fps=fps,
+        idm_source_kinds=["camera", "camera", "position"],
+    )  # fmt: skip
+    torch.manual_seed(0)
+    policy = IUPEPolicy(config).eval()
+    torch.nn.init.normal_(policy.idm_camera.out.weight)  # zero at the start of training: it would hide its input
+    for module in policy.modules():
+        if hasattr(module, "gamma"):
+            module.gamma.data.fill_(0.5)
+    layout = policy.layout
+    cameras = [i for i, key in enumerate(config.observation_keys) if key in config.camera_keys]
+    assert (policy.camera_span is None) == (order[1] == OBS_STATE)
+    frames = [config.idm_window.index(offset) for offset in config.camera_offsets]
+    assert (frames == [0, 1, 2]) == (fps == 5)
+    window = torch.rand(4, len(config.idm_window), layout.size, generator=torch.Generator().manual_seed(3))
+    expected_frames = window[:, frames][:, :, layout.indices(cameras)]
+    torch.testing.assert_close(policy.camera_frames(window), expected_frames, rtol=0, atol=0)
+    start = expected_frames[:, :1]
+    packed = torch.cat([start, expected_frames[:, 1:] - start], dim=1).flatten(1)
+    expected = policy.idm_camera.out(policy.idm_camera.encoder(packed))
+    torch.testing.assert_close(policy.idm_camera(policy.camera_frames(window)), expected)
+    with torch.no_grad():
+        torch.testing.assert_close(policy.idm_camera(policy.camera_frames(window)), expected)
+    moved = window.clone()
+    moved[:, frames[-1], layout.columns(cameras[-1])] += 0.5  # the last camera's latest frame reaches the output
+    assert not torch.allclose(policy.idm_camera(policy.camera_frames(moved)), expected)
+
+
 def test_a_supervised_linear_part_reads_the_vector_columns_without_a_camera_frame(tmp_path):
     """Windows of joined frames carry every camera value (4,096 of two 96×128 cameras were 4.8 GB at once): the
     linear part is fitted from the vector columns alone, read without joining a frame, and fits as from the whole

@@ -1,3 +1,7 @@
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -162,3 +166,28 @@ def test_unknown_eval_mode_is_refused_naming_the_flag():
 def test_unknown_image_backbone_is_refused_naming_the_flag():
     with pytest.raises(ValueError, match=r"--policy.image_backbone must be one of \['cnn', 'resnet18'\], got 'vit'"):
         IUPEConfig(image_backbone="vit")
+
+
+FREE_64_MB = """
+import os
+import numpy as np
+from lerobot_iupe.policy.threads import keep_freed_memory
+def retained():
+    resident = lambda: int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    before = resident()
+    block = np.ones(64 << 20, dtype=np.uint8)
+    del block
+    return resident() - before
+print(retained(), keep_freed_memory(), retained())
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="reads resident memory from /proc")
+def test_freed_blocks_go_back_by_default_and_stay_with_a_process_that_keeps_freed_memory():
+    """An IDM batch's tensors are freed and allocated again at the same size every pass; glibc unmaps blocks over
+    32 MB when freed, so each pass page-faulted them in afresh. ``keep_freed_memory`` keeps them (relabelling and
+    training call it); the setting is the process's, so the test runs in one of its own."""
+    run = subprocess.run([sys.executable, "-c", FREE_64_MB], capture_output=True, text=True, check=True)
+    by_default, kept, after = run.stdout.split()
+    assert int(by_default) < 16 << 20
+    assert kept == "True" and int(after) > 48 << 20

@@ -53,6 +53,14 @@ class ObservationLayout:
         """The packed columns of these keys (by position), in layout order."""
         return [c for i in sorted(parts) for c in range(self.columns(i).start, self.columns(i).stop)]
 
+    def span(self, parts) -> slice | None:
+        """The packed columns of these keys as one slice (a view of a frame, not a copy) where they sit side by
+        side, else None."""
+        parts = sorted(parts)
+        if parts != list(range(parts[0], parts[-1] + 1)):
+            return None
+        return slice(self.columns(parts[0]).start, self.columns(parts[-1]).stop)
+
     def join(self, parts: list):
         """One observation (numpy arrays or tensors with a leading N axis, one per key, in layout order): see the
         module docstring. Cameras are uint8 0-255 (datasets, envs) or float 0-1 (LeRobot's preprocessed batches);

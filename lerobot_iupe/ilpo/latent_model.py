@@ -9,7 +9,8 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
-from lerobot_iupe.policy.networks import FusedEncoder, make_action_head, make_image_encoder
+from lerobot_iupe.policy.heads import make_action_head
+from lerobot_iupe.policy.networks import FusedEncoder, make_image_encoder
 
 LEAK = 0.2  # every activation of the authors' networks is a leaky ReLU of this slope
 

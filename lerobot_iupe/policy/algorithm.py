@@ -20,6 +20,20 @@ def choose_actions(logits: torch.Tensor, explore: bool, generator: torch.Generat
     return torch.multinomial(probs, 1, generator=generator).squeeze(-1)
 
 
+def frame_differences(values: torch.Tensor, reference: int, frames: list[int] | None = None) -> torch.Tensor:
+    """The IDM's input [x_ref, x_j − x_ref for every other j] (B, len(frames), V) of ``values`` (B, F, V), ``frames``
+    (default: all) in order and ``reference`` one of them, written once into a new contiguous tensor whatever the
+    strides of ``values``: a gathered copy of the frames, their differences and the concatenation would each cost
+    a pass over the frames (a camera network's input is 0.2 MB a window at 96×128)."""
+    frames = list(range(values.shape[1])) if frames is None else frames
+    out = torch.empty(len(values), len(frames), values.shape[-1], dtype=values.dtype, device=values.device)
+    start = values[:, reference]
+    out[:, 0] = start
+    for n, j in enumerate(f for f in frames if f != reference):
+        torch.sub(values[:, j], start, out=out[:, n + 1])
+    return out
+
+
 def success_action_distribution(episode_actions: list[np.ndarray], successes: np.ndarray, n_actions: int) -> np.ndarray:
     """Eq. 1: P(a|E) = (1/|E|) Σ_e v_e · freq_e(a). Sums to r, the success rate."""
     total = np.zeros(n_actions)

@@ -1,6 +1,6 @@
 """IUPE policy: an inverse dynamics model (IDM) P(a | s_t, s_{t+1}) and a policy model (PM) P(a | s_t) in one
 LeRobot checkpoint. This module is LeRobot's API only; the algorithm that trains them inside ``lerobot-train``
-is ``training.py``, the networks ``networks.py``.
+is ``training.py``, the networks ``networks.py`` and ``heads.py``.
 
 The checkpoint LeRobot saves holds the *selected* model (``algorithm.selects``) as its weights, and
 beside them what the algorithm needs to go on exactly where it stopped (``training.TrainingState``). Training from
@@ -17,10 +17,12 @@ import torch
 from lerobot.policies.pretrained import PreTrainedPolicy
 from torch import Tensor, nn
 
+from lerobot_iupe.policy.algorithm import frame_differences
 from lerobot_iupe.policy.configuration_iupe import IDM_ONLY_CANNOT_ACT, IUPEConfig
+from lerobot_iupe.policy.heads import make_action_head
 from lerobot_iupe.policy.joint_idm import JointIDM
 from lerobot_iupe.policy.linear_prior import LinearPrior, expert_features
-from lerobot_iupe.policy.networks import CameraIDM, FusedEncoder, VectorEncoder, make_action_head, make_image_encoder
+from lerobot_iupe.policy.networks import CameraIDM, FusedEncoder, VectorEncoder, make_image_encoder
 from lerobot_iupe.policy.threads import acting_threads
 from lerobot_iupe.policy.training import IUPETrainer
 
@@ -55,6 +57,7 @@ class IUPEPolicy(PreTrainedPolicy):
             if config.camera_dims:  # dimensions no state column follows: a camera network of their own
                 cameras = [i for i, key in enumerate(config.observation_keys) if key in config.camera_keys]
                 self.register_buffer("camera_columns", torch.as_tensor(layout.indices(cameras)), persistent=False)
+                self.camera_span = layout.span(cameras)
                 self.idm_camera = CameraIDM(config.layout_of(config.camera_keys), len(config.camera_dims), config)
             self.pm_encoder = (
                 FusedEncoder(layout, history, config)
@@ -194,7 +197,9 @@ class IUPEPolicy(PreTrainedPolicy):
         """The camera network's frames (B, len(camera_offsets), camera values) out of joined frames of every
         observation key at the IDM's window offsets."""
         frames = [self.config.idm_window.index(offset) for offset in self.config.camera_offsets]
-        return window[:, frames][:, :, self.camera_columns.to(window.device)]
+        cameras = window[:, :, self.camera_span or self.camera_columns.to(window.device)]  # a view where adjacent
+        run = frames[-1] - frames[0] == len(frames) - 1
+        return cameras[:, frames[0] : frames[-1] + 1] if run else cameras[:, frames]
 
     def camera_reference(self, window: Tensor) -> Tensor:
         """The camera dimensions' thumbnail ridge (``camera_reference.py``) on joined frames at the IDM's offsets."""
@@ -225,21 +230,13 @@ class IUPEPolicy(PreTrainedPolicy):
         cameras (B, F · C, H, W), vectors (B, F · D) (differences divided by the std; the means cancel). The general
         path's values without its copies of whole frames (40% of an image IDM's labelling at 96×128)."""
         window, layout, encoder = window.float(), self.layout, self.idm_encoder
-        b, frames = window.shape[:2]
-
-        def differences(values: Tensor) -> Tensor:
-            out = torch.empty(b, frames, values.shape[-1], dtype=values.dtype, device=values.device)
-            out[:, 0] = values[:, k]
-            torch.sub(values[:, :k], values[:, k : k + 1], out=out[:, 1 : k + 1])
-            torch.sub(values[:, k + 1 :], values[:, k : k + 1], out=out[:, k + 1 :])
-            return out
-
-        cameras = [differences(window[:, :, layout.columns(i)]).view(b, -1, *layout.shapes[i][1:])
+        b = len(window)
+        cameras = [frame_differences(window[:, :, layout.columns(i)], k).view(b, -1, *layout.shapes[i][1:])
                    for i in encoder.cameras]  # fmt: skip
         if encoder.vector_encoder is None:
             return cameras, None
         columns = self.vector_columns.to(window.device)
-        vectors = differences(window[:, :, columns])
+        vectors = frame_differences(window[:, :, columns], k)
         vectors[:, 0] = (vectors[:, 0] - self.state_mean[columns]) / self.state_std[columns]
         vectors[:, 1:] /= self.state_std[columns]
         return cameras, vectors.flatten(1)

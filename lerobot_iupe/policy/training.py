@@ -43,6 +43,7 @@ from lerobot_iupe.policy.algorithm import (
 from lerobot_iupe.policy.idm_fit import fit_idm
 from lerobot_iupe.policy.joint_fit import JointFit
 from lerobot_iupe.policy.rollouts import PolicyRollouts
+from lerobot_iupe.policy.threads import use_cpu_runtime
 from lerobot_iupe.policy.train_run import read_no_cameras_in_lerobot_train, resuming
 from lerobot_iupe.policy.training_state import CYCLES_FILE, TRAINING_STATE_FILE, TrainingState
 
@@ -117,7 +118,7 @@ class IUPETrainer:
     def start(self) -> None:
         cfg = self.config
         pre_dataset = self.check_inputs()
-        self.set_threads()
+        use_cpu_runtime(self.config.threads)
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
         pre = load_transitions(pre_dataset, cfg.observation_keys, "pyav", cfg.layout, cfg.idm_context or 0)
         if cfg.is_continuous:  # fitted again identically on resume (own seed)
@@ -173,10 +174,6 @@ class IUPETrainer:
         log.info(f"IUPE: continuing from cycle {state.cycle} (step {state.step}) of {saved.parent}")
         return True
 
-    def set_threads(self) -> None:
-        if self.config.threads:
-            torch.set_num_threads(self.config.threads)
-
     def restore(self, saved: dict) -> None:
         """Go on where the saved run stopped: the loaded weights are its selected model; the current model becomes
         its latest one (LeRobot's restored optimizer state belongs to those)."""
@@ -189,7 +186,7 @@ class IUPETrainer:
     def expert_frames(self) -> ExpertFrames:
         if self._expert is None:
             if self.config.supervised:  # the IUPE cycle sets them in start()
-                self.set_threads()
+                use_cpu_runtime(self.config.threads)
             meta = self.dataset_meta
             dataset = LeRobotDataset(meta.repo_id, root=meta.root, video_backend="pyav")
             cfg = self.config

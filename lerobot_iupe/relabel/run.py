@@ -26,6 +26,7 @@ from lerobot_iupe.data.storage import (
 from lerobot_iupe.data.video import default_video_backend
 from lerobot_iupe.policy.action_space import feature_names
 from lerobot_iupe.policy.algorithm import r_squared
+from lerobot_iupe.policy.threads import keep_freed_memory
 from lerobot_iupe.relabel.checks import (
     check_has_episodes,
     check_labelable,
@@ -67,6 +68,7 @@ def relabel(cfg: RelabelConfig) -> RelabelReport:
 
 def _relabel(cfg: RelabelConfig, root: Path, rank: int, world: int) -> RelabelReport:
     torch.set_num_threads(cfg.num_threads)
+    keep_freed_memory()  # before the workers fork: they inherit it
     backend = cfg.dataset.video_backend or default_video_backend()
     device = cfg.policy.device
     policy = load_idm(cfg.policy.path, device)
