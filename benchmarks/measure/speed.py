@@ -267,7 +267,7 @@ def main() -> None:
             row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
             print(row, flush=True)
             rows.append(row)
-        keep(results, "train", rows, command, ("frames", "idm"))
+        keep(results, "train", rows, command, ("frames", "idm", "baseline"))
 
     if "maze" in args.only:
         maze = work / "maze5-expert"
@@ -313,7 +313,7 @@ def main() -> None:
                 "baseline": args.baseline, "before_processes": workers,
             })  # fmt: skip
             print(rows[-1], flush=True)
-        keep(results, "relabel", rows, command, ("frames", "processes"))
+        keep(results, "relabel", rows, command, ("frames", "processes", "baseline"))
 
     args.out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(results, indent=1) + "\n")
@@ -322,8 +322,8 @@ def main() -> None:
 
 def keep(results: dict, section: str, rows: list[dict], command: str, key: tuple[str, ...]) -> None:
     """Put ``rows`` into ``section`` in place of those with the same ``key``; the section's commands so far."""
-    new = {tuple(r[k] for k in key) for r in rows}
-    results[section] = [r for r in results.get(section, []) if tuple(r[k] for k in key) not in new] + rows
+    new = {tuple(r.get(k) for k in key) for r in rows}
+    results[section] = [r for r in results.get(section, []) if tuple(r.get(k) for k in key) not in new] + rows
     commands = results["commands"].get(section, [])
     commands = [commands] if isinstance(commands, str) else commands
     results["commands"][section] = commands + [command] if command not in commands else commands
@@ -357,7 +357,11 @@ def render(results: dict, page: Path) -> None:
                   "read 10.5 steps/s at 4dd0cab and 12.9 at 80d3887 with the same training code; 300 steps of each, "
                   "alternating (`benchmarks/measure/speed.py`'s `train`), gave 11.9 and 11.2 at 80d3887 against 11.9 "
                   "and 11.6 at fda618c. The camera IDM trained alone (`--policy.idm_only=true`) trains no policy "
-                  "model: the baseline, which has no such flag, trains its own.", ""]  # fmt: skip
+                  "model: the baseline, which has no such flag, trains its own. The 59efeed rows time the allocator "
+                  "setting that keeps freed memory (`policy/threads.py`), made for relabelling's IDM passes (batch "
+                  "32); one run each (0.95×, 1.30×) shows no effect on training beyond this machine's noise, which "
+                  "was larger that day: the d03e093 2,000-frame rows, run an hour earlier, read 2.22× where an "
+                  "earlier run read 2.81×.", ""]  # fmt: skip
     if "maze" in results:
         lines += ["## The 64×64 path", "", commands_of(results, "maze"), "",
                   "| data | steps | before steps/s | after steps/s | speedup | before relabel frames/s | "
@@ -370,15 +374,16 @@ def render(results: dict, page: Path) -> None:
         lines.append("")
     if "relabel" in results:
         lines += ["## Relabelling with the camera IDM", "", commands_of(results, "relabel"), "",
-                  "Frames/s are the report's: decoding, labelling and the pull toward the observation, a fit of about "
-                  "6–9 s on one core whatever the dataset's size (on by default for this IDM); 'without the pull' is "
-                  "the same run with `--pull_to_observation=0`. The plain decodes convert every frame to RGB at full "
-                  "size, one thread a process, torchcodec's (the limit the issue names) and PyAV's (the faster on "
+                  "Frames/s are the report's: decoding, labelling and the pull toward the observation, a fit of about"
+                  " 6–9 s on one core whatever the dataset's size (on by default for this IDM); 'without the pull' is"
+                  " the same run with `--pull_to_observation=0`. The plain decodes convert every frame to RGB at full"
+                  " size, one thread a process, torchcodec's (the limit the issue names) and PyAV's (the faster on "
                   "these AV1 files). Rows without the later columns were measured before they existed. The c96015a "
-                  "rows relabel with a camera IDM trained on the same recording by `lerobot-train --policy.type=iupe "
-                  "--policy.supervised=true --policy.joint_state_columns=[] --policy.idm_only=true --steps=300` "
-                  "(`--checkpoint`); before that revision, PyAV's decoder started a thread per core in every process "
-                  "(libdav1d ignores `thread_type`).", "",
+                  "and 59efeed rows relabel with a camera IDM trained on the same recording by `lerobot-train "
+                  "--policy.type=iupe --policy.supervised=true --policy.joint_state_columns=[] --policy.idm_only=true"
+                  " --steps=300` (`--checkpoint`); before c96015a, PyAV's decoder started a thread per core in every "
+                  "process (libdav1d ignores `thread_type`). The machine ran the 59efeed rows' plain decodes 20% "
+                  "slower than the c96015a rows' (174 against 217 frames/s): compare ratios within a row.", "",
                   "| frames | decoder | processes | machine | relabel frames/s | without the pull | plain decode, "
                   "torchcodec | plain decode, PyAV | ratio to torchcodec's | without the pull | ratio to PyAV's, "
                   "without the pull | peak GB | before: revision, processes | before frames/s | before peak GB |",
