@@ -2,7 +2,6 @@
 ``select_action``) and the C allocator's habit of handing freed memory back."""
 
 import ctypes
-import ctypes.util
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -34,9 +33,9 @@ def keep_freed_memory() -> bool:
     2.0 ms a window of batch 32 at 96×128); ``lerobot-train``'s steps (batch 8) showed no change beyond noise. What a
     process holds at its peak stays resident (+10 MB on a 1.06 GB relabel). Set by hand because the allocator's
     settings are not torch's; no-op (False) where the C library has no ``mallopt`` (not glibc)."""
-    name = ctypes.util.find_library("c")
-    mallopt = getattr(ctypes.CDLL(name), "mallopt", None) if name else None
-    if mallopt is None:
+    try:  # the symbols already loaded into this process (libc's among them): no library search
+        mallopt = ctypes.CDLL(None).mallopt
+    except (AttributeError, OSError, TypeError):
         return False
     return bool(mallopt(_M_MMAP_THRESHOLD, HEAP_ALLOCATION_BYTES)) and bool(mallopt(_M_TRIM_THRESHOLD, RETAINED_BYTES))
 
