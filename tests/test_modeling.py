@@ -10,7 +10,7 @@ from lerobot.datasets import LeRobotDataset
 
 from lerobot_iupe.data.readers import ExpertFrames, column_array, load_transitions
 from lerobot_iupe.data.transitions import Transitions, context_offsets
-from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
+from lerobot_iupe.policy import IUPEConfig, IUPEPolicy, threads
 from lerobot_iupe.policy.idm_fit import fit_idm
 from lerobot_iupe.policy.networks import SpatialSelfAttention, TokenSelfAttention
 
@@ -169,16 +169,18 @@ def test_unknown_image_backbone_is_refused_naming_the_flag():
 
 
 FREE_64_MB = """
-import os
+import importlib.util, os, sys
 import numpy as np
-from lerobot_iupe.policy.threads import keep_freed_memory
+spec = importlib.util.spec_from_file_location("threads", sys.argv[1])  # the module alone: not the policy's imports
+threads = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(threads)
 def retained():
     resident = lambda: int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
     before = resident()
     block = np.ones(64 << 20, dtype=np.uint8)
     del block
     return resident() - before
-print(retained(), keep_freed_memory(), retained())
+print(retained(), threads.keep_freed_memory(), retained())
 """
 
 
@@ -187,7 +189,8 @@ def test_freed_blocks_go_back_by_default_and_stay_with_a_process_that_keeps_free
     """An IDM batch's tensors are freed and allocated again at the same size every pass; glibc unmaps blocks over
     32 MB when freed, so each pass page-faulted them in afresh. ``keep_freed_memory`` keeps them (relabelling and
     training call it); the setting is the process's, so the test runs in one of its own."""
-    run = subprocess.run([sys.executable, "-c", FREE_64_MB], capture_output=True, text=True, check=True)
+    module = Path(threads.__file__)
+    run = subprocess.run([sys.executable, "-c", FREE_64_MB, str(module)], capture_output=True, text=True, check=True)
     by_default, kept, after = run.stdout.split()
     assert int(by_default) < 16 << 20
     assert kept == "True" and int(after) > 48 << 20
