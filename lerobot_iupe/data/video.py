@@ -128,7 +128,6 @@ class CameraFrames:
         return decoder.get_frames_in_range(first, last).data
 
     def _pyav(self, path: Path, start_s: float, count: int) -> Tensor:
-
         container = self._decoder(path, lambda: open_video(path))
         stream = container.streams.video[0]
         tolerance = 0.5 / self.meta.fps

@@ -27,12 +27,13 @@ def acting_threads(threads: int) -> Iterator[None]:
 
 
 def keep_freed_memory() -> bool:
-    """Keep freed memory in this process (and the processes it forks) for the next allocation of the same size,
-    instead of glibc's default of unmapping every freed block over 32 MB and trimming the heap: each IDM batch
-    would otherwise page-fault its tensors in afresh, which cost a camera IDM 25% of its time labelling (2.6 against
-    2.0 ms a window of batch 32 at 96×128); ``lerobot-train``'s steps (batch 8) showed no change beyond noise. What a
-    process holds at its peak stays resident (+10 MB on a 1.06 GB relabel). Set by hand because the allocator's
-    settings are not torch's; no-op (False) where the C library has no ``mallopt`` (not glibc)."""
+    """Keep freed memory in this process (and the processes it forks) for the next allocation of the same size, instead
+    of glibc's default, which unmaps large freed blocks (its threshold moves, up to 32 MB) and trims the heap's top
+    once over twice that: each IDM batch would otherwise page-fault its tensors in afresh, which cost a camera IDM
+    25% of its time labelling (2.6 against 2.0 ms a window of batch 32 at 96×128); ``lerobot-train``'s steps (batch
+    8) showed no change beyond noise. What a process holds at its peak stays resident (+10 MB on a 1.06 GB relabel).
+    Set by hand because the allocator's settings are not torch's; no-op (False) where the C library has no
+    ``mallopt`` (not glibc)."""
     try:  # the symbols already loaded into this process (libc's among them): no library search
         mallopt = ctypes.CDLL(None).mallopt
     except (AttributeError, OSError, TypeError):
