@@ -4,6 +4,7 @@ import io
 import json
 import logging
 import os
+import runpy
 import shutil
 import signal
 import subprocess
@@ -51,11 +52,21 @@ def run_in_process(name: str, *args: str, check: bool = False) -> subprocess.Com
     LeRobot; the commands run as processes where the process is what a test checks (README's workflows, a second
     writer, kill -9, the hub's environment, the benchmark's jobs)."""
     (script,) = [e for e in entry_points(group="console_scripts") if e.name == name]
-    main = script.load()
-    out, err, threads, argv = io.StringIO(), io.StringIO(), torch.get_num_threads(), sys.argv
+    return _captured(script.load(), [name, *args], check)
+
+
+def run_script(path: Path, *args: str, check: bool = False) -> subprocess.CompletedProcess:
+    """A repository script (``scripts/…``, ``benchmarks/measure/…``) run in this process as ``__main__`` with these
+    arguments, as ``run_in_process`` runs an installed command."""
+    return _captured(lambda: runpy.run_path(str(path), run_name="__main__"), [str(path), *args], check)
+
+
+def _captured(main: Callable[[], object], argv: list[str], check: bool) -> subprocess.CompletedProcess:
+    """``main()`` with ``sys.argv = argv``: its exit code and output, and this process's settings as they were."""
+    out, err, threads, saved_argv = io.StringIO(), io.StringIO(), torch.get_num_threads(), sys.argv
     # LeRobot's init_logging replaces the root logger's handlers with one bound to this call's captured stderr
     handlers, level = logging.root.handlers[:], logging.root.level
-    sys.argv = [name, *args]
+    sys.argv = argv
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             main()
@@ -66,12 +77,12 @@ def run_in_process(name: str, *args: str, check: bool = False) -> subprocess.Com
         traceback.print_exc(file=err)
         code = 1
     finally:
-        sys.argv = argv
+        sys.argv = saved_argv
         torch.set_num_threads(threads)  # lerobot-iupe-relabel sets its own
         logging.root.handlers[:], logging.root.level = handlers, level
     if check and code != 0:
-        raise AssertionError(f"{name} failed ({code}):\n{out.getvalue()[-3000:]}\n{err.getvalue()[-5000:]}")
-    return subprocess.CompletedProcess([name, *args], code, out.getvalue(), err.getvalue())
+        raise AssertionError(f"{argv[0]} failed ({code}):\n{out.getvalue()[-3000:]}\n{err.getvalue()[-5000:]}")
+    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
 
 
 @pytest.fixture(scope="session")

@@ -14,7 +14,7 @@ from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from lerobot_iupe.benchmark import evaluate_checkpoint
-from lerobot_iupe.data.readers import load_transitions
+from lerobot_iupe.data.readers import column_array, load_transitions
 from lerobot_iupe.envs.configs import LunarLanderEnvConfig, action_space_of, env_settings
 from lerobot_iupe.ilpo import ILPOPolicy
 from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
@@ -141,7 +141,7 @@ def test_a_full_iupe_checkpoint_relabels_state_only_lunarlander_data_with_named_
     feature = relabelled.meta.features[ACTION]
     assert feature["dtype"] == "float32" and tuple(feature["shape"]) == (2,)
     assert feature["names"] == ["main_engine", "lateral_engines"]
-    labels = np.asarray(relabelled.hf_dataset.with_format("numpy")[ACTION])
+    labels = column_array(relabelled.hf_dataset, ACTION)
     assert labels.shape == (relabelled.meta.total_frames, 2) and labels.dtype == np.float32
     assert (labels >= -1).all() and (labels <= 1).all() and labels.std(axis=0).min() > 0.01
     np.testing.assert_allclose(relabelled.meta.stats[ACTION]["mean"], labels.mean(axis=0), rtol=1e-5, atol=1e-6)
@@ -160,7 +160,7 @@ def test_relabel_pulls_lunarlander_labels_toward_the_observation_and_records_it(
             f"--dataset.root={root}", *extra, check=True
         )  # fmt: skip
         dataset = LeRobotDataset(f"local/{name}", root=root)
-        return np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]), dataset
+        return column_array(dataset.hf_dataset, ACTION), dataset
 
     own, _ = written("own", "--pull_to_observation=0")
     moved, dataset = written("pulled")

@@ -4,20 +4,16 @@ printed."""
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import io
 import json
 import os
 import re
-import runpy
 import shlex
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from conftest import BIN, run_in_process
+from conftest import BIN, run_in_process, run_script
 from hub_server import LocalHub
 from test_hub import hub_env
 
@@ -63,19 +59,11 @@ def program_of(words: list[str]) -> tuple[list[str], list[str]] | None:
 def help_text(program: tuple[str, ...], selectors: tuple[str, ...]) -> str:
     """``program``'s ``--help`` with these type selectors, run in this process (a new one per call spent ~8 s
     importing torch and LeRobot): the console script's own function, or the script as ``__main__``."""
-    if program[0] != "python":
+    if program[0] == "python":
+        result = run_script(ROOT / program[1], *selectors, "--help")
+    else:
         result = run_in_process(program[0], *selectors, "--help")
-        return result.stdout + result.stderr
-    out, argv = io.StringIO(), sys.argv
-    sys.argv = [program[1], *selectors, "--help"]
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-            runpy.run_path(str(ROOT / program[1]), run_name="__main__")
-    except SystemExit:
-        pass
-    finally:
-        sys.argv = argv
-    return out.getvalue()
+    return result.stdout + result.stderr
 
 
 def unknown_flags(text: str) -> list[str]:

@@ -15,6 +15,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_iupe.data.readers import column_array
 from lerobot_iupe.policy import IUPEConfig
 from lerobot_iupe.policy.algorithm import r_squared
 from lerobot_iupe.policy.modeling_iupe import IUPEPolicy
@@ -60,13 +61,13 @@ def write_three_views(root, episodes: int, seed: int, with_actions: bool, order=
 
 
 def inner(actions: np.ndarray, dataset) -> np.ndarray:
-    episodes = np.asarray(dataset.hf_dataset.with_format("numpy")["episode_index"])
+    episodes = column_array(dataset.hf_dataset, "episode_index")
     return actions[np.append(episodes[:-1] == episodes[1:], False)]
 
 
 def labels_of(root) -> tuple[np.ndarray, LeRobotDataset]:
     dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
-    return np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]), dataset
+    return column_array(dataset.hf_dataset, ACTION), dataset
 
 
 @pytest.fixture(scope="session")
@@ -83,7 +84,7 @@ def fused_idm(shared_dir):
             "lerobot-train", "--policy.type=iupe", "--policy.supervised=true", "--policy.idm_context=0",
             f"--dataset.repo_id=local/{labelled.name}", f"--dataset.root={labelled}", "--dataset.video_backend=pyav",
             f"--output_dir={work / 'idm'}", "--num_workers=0", "--policy.device=cpu", "--wandb.enable=false",
-            "--steps=250", "--save_freq=250", "--batch_size=64", "--policy.optimizer_lr=3e-3",
+            "--steps=150", "--save_freq=150", "--batch_size=64", "--policy.optimizer_lr=3e-3",
             "--policy.torch_threads=1", check=True
         )  # fmt: skip
 

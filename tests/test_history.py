@@ -9,6 +9,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.datasets import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_iupe.data.readers import column_array
 from lerobot_iupe.policy import IUPEConfig, IUPEPolicy
 from lerobot_iupe.policy.algorithm import r_squared
 
@@ -82,8 +83,7 @@ def test_a_policy_with_history_learns_what_the_current_observation_cannot_tell(t
         policy = IUPEPolicy.from_pretrained(out / CHECKPOINT).eval()
         assert policy.config.n_obs_steps == n
         dataset = LeRobotDataset("local/echo", root=data)
-        frames = dataset.hf_dataset.with_format("numpy")
-        states, actions, episodes = frames[OBS_STATE], frames[ACTION], frames["episode_index"]
+        states, actions, episodes = (column_array(dataset.hf_dataset, k) for k in (OBS_STATE, ACTION, "episode_index"))
         played = []
         for episode in np.unique(episodes):  # LeRobot's env loop: reset, then one select_action per step
             policy.reset()

@@ -77,11 +77,11 @@ def test_a_loader_without_cameras_keeps_every_other_column(arm_small):
 
 
 def test_a_relabel_by_worker_processes_writes_the_labels_of_one_process(camera_run, arm_small, data_dir, tmp_path):
-    """Draws (--mode=sample), several spans per episode (--batch_size=8): the labels of three worker processes,
-    of one, and of none (all in the calling process) are the same to the bit."""
+    """Draws (--mode=sample), several spans per episode (--batch_size=8): the labels of three worker processes and
+    of none (all in the calling process) are the same to the bit."""
     source = arm(data_dir, "arm-480-small-state-only", episodes=3, frames_per_episode=20, with_actions=False)
     labels = {}
-    for workers in (0, 1, 3):
+    for workers in (0, 3):
         root = tmp_path / f"workers-{workers}"
         shutil.copytree(source, root)
         run_in_process(
@@ -91,7 +91,7 @@ def test_a_relabel_by_worker_processes_writes_the_labels_of_one_process(camera_r
         )  # fmt: skip
         labels[workers] = action_array(LeRobotDataset("local/x", root=root))
     assert labels[0].shape == (60, 6) and np.isfinite(labels[0]).all()
-    assert np.array_equal(labels[1], labels[0]) and np.array_equal(labels[3], labels[0])
+    assert np.array_equal(labels[3], labels[0])
 
 
 def test_workers_that_only_decode_feed_the_first_process_the_same_outputs(camera_run, arm_small):

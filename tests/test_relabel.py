@@ -19,7 +19,7 @@ from test_hub import hub_env
 
 from lerobot_iupe.benchmark import evaluate_checkpoint
 from lerobot_iupe.collect import dataset_features
-from lerobot_iupe.data.readers import stored_frames
+from lerobot_iupe.data.readers import column_array, stored_frames
 from lerobot_iupe.data.storage import read_iupe_meta, write_iupe_meta
 from lerobot_iupe.envs.configs import CartPoleEnvConfig
 from lerobot_iupe.relabel import CheckpointRef, RelabelConfig, RelabelDataset, relabel
@@ -53,10 +53,10 @@ def relabel_args(checkpoint, root, *extra: str) -> list[str]:
 
 
 def true_actions(root) -> tuple[np.ndarray, np.ndarray]:
-    table = LeRobotDataset("local/x", root=root, video_backend="pyav").hf_dataset.with_format("numpy")
-    episodes = np.asarray(table["episode_index"])
+    table = LeRobotDataset("local/x", root=root, video_backend="pyav").hf_dataset
+    episodes = column_array(table, "episode_index")
     has_next = np.append(episodes[:-1] == episodes[1:], False)
-    return np.asarray(table["action"]).reshape(-1), has_next
+    return column_array(table, "action").reshape(-1), has_next
 
 
 def test_relabelled_state_dataset_matches_the_true_actions(cartpole_run, data_dir):

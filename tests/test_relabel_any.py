@@ -16,7 +16,7 @@ from lerobot.policies.act.configuration_act import ACTConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from safetensors.torch import load_file
 
-from lerobot_iupe.data.readers import label_spans, span_windows, window_indices
+from lerobot_iupe.data.readers import column_array, label_spans, span_windows, window_indices
 from lerobot_iupe.hub import build_card
 from lerobot_iupe.policy import IUPEConfig
 from lerobot_iupe.policy.algorithm import r_squared
@@ -103,7 +103,7 @@ def relabel(checkpoint, dataset, *flags: str, check: bool = True, launcher: tupl
 
 def with_successor(dataset) -> np.ndarray:
     """Per frame, whether it has a successor in its episode (the last frame repeats the label before it)."""
-    episodes = np.asarray(dataset.hf_dataset.with_format("numpy")["episode_index"])
+    episodes = column_array(dataset.hf_dataset, "episode_index")
     return np.append(episodes[:-1] == episodes[1:], False)
 
 
@@ -183,7 +183,7 @@ def test_a_supervised_idm_relabels_lerobot_written_continuous_data(continuous_id
     dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out)
     feature = dataset.meta.features[ACTION]
     assert feature["dtype"] == "float32" and tuple(feature["shape"]) == (2,) and feature["names"] == ACTION_NAMES
-    labels = np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION])
+    labels = column_array(dataset.hf_dataset, ACTION)
     assert r_squared(inner(labels, dataset), inner(true, dataset)) > 0.9
     stats = dataset.meta.stats[ACTION]
     assert set(stats) == set(dataset.meta.stats[OBS_STATE])  # the same statistics LeRobot computes for a feature
@@ -234,7 +234,7 @@ def test_lerobots_chunked_policies_train_on_the_relabelled_labels(continuous_idm
     # the policy predicts our 2-D labels and normalises them by stats that are those of the written labels
     config = json.loads((out / CHECKPOINT / "config.json").read_text())
     assert config["type"] == policy and config["output_features"]["action"]["shape"] == [2]
-    labels = np.asarray(LeRobotDataset(f"local/{dataset.name}", root=dataset).hf_dataset.with_format("numpy")["action"])
+    labels = column_array(LeRobotDataset(f"local/{dataset.name}", root=dataset).hf_dataset, "action")
     stats = load_file(out / CHECKPOINT / "policy_postprocessor_step_0_unnormalizer_processor.safetensors")
     if policy == "act":
         np.testing.assert_allclose(stats["action.mean"].numpy(), labels.mean(0), rtol=1e-4, atol=1e-5)
@@ -283,9 +283,7 @@ def test_two_processes_write_the_same_bytes_as_one(continuous_idm, work):
     assert "on 2 processes" in result.stdout, result.stdout + result.stderr[-3000:]
     files = sorted(p.relative_to(one) for p in one.rglob("*") if p.is_file() and p.name != "iupe.json")
     assert files == sorted(p.relative_to(two) for p in two.rglob("*") if p.is_file() and p.name != "iupe.json")
-    labels = [
-        np.asarray(LeRobotDataset("local/x", root=root).hf_dataset.with_format("numpy")[ACTION]) for root in (one, two)
-    ]
+    labels = [column_array(LeRobotDataset("local/x", root=root).hf_dataset, ACTION) for root in (one, two)]
     np.testing.assert_array_equal(labels[0], labels[1])
     for name in files:
         assert (one / name).read_bytes() == (two / name).read_bytes(), name
@@ -301,7 +299,7 @@ def test_a_discrete_supervised_idm_from_lerobot_written_data(work):
     relabel(checkpoint, held_out)
     dataset = LeRobotDataset(f"local/{held_out.name}", root=held_out)
     assert dataset.meta.features[ACTION]["dtype"] == "int64"
-    labels = np.asarray(dataset.hf_dataset.with_format("numpy")[ACTION]).reshape(-1)
+    labels = column_array(dataset.hf_dataset, ACTION).reshape(-1)
     assert (inner(labels, dataset) == inner(true, dataset)).mean() >= 0.95
 
 
