@@ -86,7 +86,14 @@ def train(root: Path, out: Path, steps: int, env: dict, *extra: str) -> dict:
          "--wandb.enable=false", *extra],
         env,
     )  # fmt: skip
-    return {"steps_per_s": steps_per_s(output), "seconds": seconds, "peak_rss_gb": peak}
+    return {"steps_per_s": steps_per_s(output), "seconds": seconds, "peak_rss_gb": peak,
+            "resolution": resolution_of(out / CHECKPOINT)}  # fmt: skip
+
+
+def resolution_of(checkpoint: Path) -> str:
+    """The working resolution a checkpoint reads its cameras at (``config.json``'s ``resize_shape``), as ``H×W``."""
+    shape = json.loads((checkpoint / "config.json").read_text()).get("resize_shape")
+    return "×".join(str(side) for side in shape) if shape else "as stored"
 
 
 def plain_decode(root: Path, backend: str, share: int, shares: int) -> int:
@@ -267,7 +274,9 @@ def main() -> None:
             row["speedup"] = row["after"]["steps_per_s"] / row["before"]["steps_per_s"]
             print(row, flush=True)
             rows.append(row)
-        keep(results, "train", rows, command, ("frames", "idm", "baseline"))
+        for row in rows:
+            row["resolution"] = row["after"]["resolution"]
+        keep(results, "train", rows, command, ("frames", "idm", "baseline", "resolution"))
 
     if "maze" in args.only:
         maze = work / "maze5-expert"
@@ -310,10 +319,10 @@ def main() -> None:
                 "unpulled_frames_per_s": unpulled["frames_per_s"], "plain_decode_pyav_frames_per_s": plain_pyav,
                 "plain_decode_frames_per_s": plain, "ratio": measured["frames_per_s"] / plain,
                 "before_frames_per_s": before_rate["frames_per_s"], "before_peak_rss_gb": before_rate["peak_rss_gb"],
-                "baseline": args.baseline, "before_processes": workers,
+                "baseline": args.baseline, "before_processes": workers, "resolution": resolution_of(checkpoint),
             })  # fmt: skip
             print(rows[-1], flush=True)
-        keep(results, "relabel", rows, command, ("frames", "processes", "baseline"))
+        keep(results, "relabel", rows, command, ("frames", "processes", "baseline", "resolution"))
 
     args.out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(results, indent=1) + "\n")
@@ -345,11 +354,13 @@ def render(results: dict, page: Path) -> None:
              ""]  # fmt: skip
     if "train" in results:
         lines += ["## Training (lerobot-train, default flags, batch 8)", "", commands_of(results, "train"), "",
-                  "| IDM | frames | steps | machine | before: revision | before steps/s | after steps/s | speedup | "
-                  "before peak GB | after peak GB |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "| IDM | frames | steps | machine | working resolution: before → after | before: revision | "
+                  "before steps/s | after steps/s | speedup | before peak GB | after peak GB |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["train"]:
             b, a = r["before"], r["after"]
-            lines.append(f"| {r['idm']} | {r['frames']:,} | {r['steps']} | {r['machine']} | "
+            resolutions = f"{b.get('resolution', '96×128')} → {a.get('resolution', '96×128')}"
+            lines.append(f"| {r['idm']} | {r['frames']:,} | {r['steps']} | {r['machine']} | {resolutions} | "
                          f"{r.get('baseline', 'd03e093')} | {b['steps_per_s']:.1f} | "
                          f"{a['steps_per_s']:.1f} | {r['speedup']:.2f}× | {b['peak_rss_gb']:.2f} | "
                          f"{a['peak_rss_gb']:.2f} |")  # fmt: skip
@@ -383,15 +394,21 @@ def render(results: dict, page: Path) -> None:
                   "--policy.type=iupe --policy.supervised=true --policy.joint_state_columns=[] --policy.idm_only=true"
                   " --steps=300` (`--checkpoint`); before c96015a, PyAV's decoder started a thread per core in every "
                   "process (libdav1d ignores `thread_type`). The machine ran the 59efeed rows' plain decodes 20% "
-                  "slower than the c96015a rows' (174 against 217 frames/s): compare ratios within a row.", "",
-                  "| frames | decoder | processes | machine | relabel frames/s | without the pull | plain decode, "
+                  "slower than the c96015a rows' (174 against 217 frames/s): compare ratios within a row. The 72×96 "
+                  "rows relabel with an IDM trained the same way with `--policy.resize_shape=[72,96]` (not the "
+                  "default): in their run torchcodec's plain decode ran 30% slower than in the 59efeed rows while "
+                  "PyAV's did not, so their ratio to torchcodec's overstates the gain; benchmarks/findings.md (sixth "
+                  "pass) compares the resolutions in one alternated run, and why the default stays 96×128.", "",
+                  "| frames | decoder | processes | machine | working resolution | relabel frames/s | without the pull"
+                  " | plain decode, "
                   "torchcodec | plain decode, PyAV | ratio to torchcodec's | without the pull | ratio to PyAV's, "
                   "without the pull | peak GB | before: revision, processes | before frames/s | before peak GB |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for r in results["relabel"]:
             unpulled, plain = r.get("unpulled_frames_per_s"), r["plain_decode_frames_per_s"]
             pyav = r.get("plain_decode_pyav_frames_per_s")
-            cells = [f"{r['frames']:,}", r["backend"], r["processes"], r["machine"], fmt(r["relabel_frames_per_s"]),
+            cells = [f"{r['frames']:,}", r["backend"], r["processes"], r["machine"], r.get("resolution", "96×128"),
+                     fmt(r["relabel_frames_per_s"]),
                      fmt(unpulled), fmt(plain), fmt(pyav), fmt(r["ratio"], 2), fmt(unpulled and unpulled / plain, 2),
                      fmt(unpulled and pyav and unpulled / pyav, 2), fmt(r["peak_rss_gb"], 2),
                      f"{r.get('baseline', 'd03e093')}, {r.get('before_processes', 1)}",
