@@ -4,9 +4,11 @@ labelled episodes and moving in the held-out ones): for 2 and 5 labelled episode
 --policy.supervised=true --batch_size=64`` and otherwise default flags, then ``lerobot-iupe-relabel`` on 10 held-out
 episodes with actions. Per dimension: the IDM's R², the ridge on the state window, the best difference copy, and for the
 gripper a ridge on 32×24 grey thumbnails of frames t and t+5 (fitted on the labelled episodes) and the accuracy of
-labels rounded to 0/1.
+labels rounded to 0/1. ``--seeds`` trains each count once per seed (the spread of a row); ``--resize_shape`` sets the
+IDM's working resolution (default: the policy's own).
 
-    python benchmarks/measure/action_sources.py [--labelled 2 5] [--steps 1000] [--size 96 128]
+    python benchmarks/measure/action_sources.py [--labelled 2 5] [--steps 1000] [--size 96 128] [--seeds 1000 1 2]
+        [--resize_shape 72 96]
 """
 
 from __future__ import annotations
@@ -70,18 +72,27 @@ def main() -> None:
     parser.add_argument("--labelled", type=int, nargs="+", default=[2, 5], help="labelled episodes")
     parser.add_argument("--steps", type=int, default=1000, help="training steps")
     parser.add_argument("--size", type=int, nargs=2, default=[96, 128], metavar=("H", "W"), help="camera size")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1000], help="training seeds (lerobot-train's default)")
+    parser.add_argument("--resize_shape", type=int, nargs=2, metavar=("H", "W"), help="the IDM's working resolution")
     args = parse_with_folders(parser, "outputs/action-sources")
     work, size = Path(args.work), tuple(args.size)
     held_out = recording(work / "held-out", HELD_OUT, 100, size, ())
     held_thumbs, held_actions, _ = thumbnails(held_out)
     rows = []
-    for count in args.labelled:
+    resize = [f"--policy.resize_shape=[{args.resize_shape[0]},{args.resize_shape[1]}]"] if args.resize_shape else []
+    runs = [(count, seed) for count in args.labelled for seed in args.seeds]
+    for count, seed in runs:
         labelled = recording(work / f"labelled-{count}", count, 0, size, (IDLE,))
+        # the first runs' folder names (seed 1000, the default resolution) are kept, so that they are reused
+        name = f"{count}" + ("" if seed == 1000 else f"-seed{seed}")
+        name += f"-{args.resize_shape[0]}x{args.resize_shape[1]}" if args.resize_shape else ""
         start = time.perf_counter()
-        checkpoint = train_once(labelled, work / f"run-{count}", *TRAIN, steps=args.steps, threads=2)
+        checkpoint = train_once(labelled, work / f"run-{name}", *TRAIN, f"--seed={seed}", *resize, steps=args.steps,
+                                threads=2)  # fmt: skip
         train_s = time.perf_counter() - start
+        resolution = json.loads((checkpoint / "config.json").read_text())["resize_shape"]
         report = dry_run(checkpoint, held_out)
-        relabelled = work / f"relabelled-{count}"
+        relabelled = work / f"relabelled-{name}"
         shutil.rmtree(relabelled, ignore_errors=True)
         shutil.copytree(held_out, relabelled)
         dataset = RelabelDataset(repo_id="local/relabelled", root=str(relabelled), video_backend="pyav")
@@ -94,7 +105,8 @@ def main() -> None:
         inner = np.ones(len(labels), dtype=bool)  # the dry run scores frames with a successor; so does this
         references = report.references
         rows.append({
-            "labelled": count, "steps": args.steps, "train_s": round(train_s, 1),
+            "labelled": count, "seed": seed, "resolution": "×".join(map(str, resolution or [])) or "as stored",
+            "steps": args.steps, "train_s": round(train_s, 1),
             "dimensions": VELOCITY_ARM.action_names, "source": references["source"],
             "idm": report.agreement_per_dimension, "ridge": references["ridge"],
             "difference_copy": references["difference"],
@@ -111,8 +123,9 @@ def main() -> None:
         f"{size[1]}×{size[0]} (AV1); joint_4 idle in the labelled episodes. R² per dimension on the held-out "
         "frames with a successor.",
         "",
-        "| labelled | dimension | source | IDM | ridge (state window) | difference copy | IDM − best simple fit |",
-        "|---|---|---|---|---|---|---|",
+        "| labelled | seed | working resolution | dimension | source | IDM | ridge (state window) | difference copy | "
+        "IDM − best simple fit |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         for j, name in enumerate(row["dimensions"]):
@@ -122,16 +135,27 @@ def main() -> None:
             simple = [v for v in simple if v == v]
             difference = row["difference_copy"][j]
             lines.append(
-                f"| {row['labelled']} | {name} | {row['source'][j]} | {row['idm'][j]:.4f} | {row['ridge'][j]:.4f} | "
+                f"| {row['labelled']} | {row['seed']} | {row['resolution']} | {name} | {row['source'][j]} | "
+                f"{row['idm'][j]:.4f} | {row['ridge'][j]:.4f} | "
                 f"{'–' if difference != difference else f'{difference:.4f}'} | {row['idm'][j] - max(simple):+.4f} |"
             )
         lines.append(
-            f"| {row['labelled']} | gripper accuracy | | {row['gripper_accuracy']:.3f} | | | thumbnail ridge: "
+            f"| {row['labelled']} | {row['seed']} | {row['resolution']} | gripper accuracy | | "
+            f"{row['gripper_accuracy']:.3f} | | | thumbnail ridge: "
             f"R² {row['gripper_thumbnail_ridge']:.4f}, accuracy {row['gripper_thumbnail_accuracy']:.3f}; the dry run's "
             f"(frames t, t+1, t+5): R² {row['gripper_checkpoint_thumbnail_ridge']:.4f} |"
         )
-    lines += ["", f"Training: {args.steps} steps, " + ", ".join(f"{r['train_s']} s ({r['labelled']} labelled)"
-                                                              for r in rows) + " on 2 threads."]  # fmt: skip
+    lines += [
+        "",
+        f"Training: {args.steps} steps, "
+        + ", ".join(f"{r['train_s']} s ({r['labelled']} labelled, seed {r['seed']})" for r in rows)
+        + " on 2 threads.",
+    ]
+    for count in args.labelled:
+        gripper = [r["idm"][-1] for r in rows if r["labelled"] == count]
+        if len(gripper) > 1:  # the spread over seeds, ddof = 1
+            lines.append(f"Gripper R² over {len(gripper)} seeds, {count} labelled: {np.mean(gripper):.4f} ± "
+                         f"{np.std(gripper, ddof=1):.4f} (min {min(gripper):.4f}).")  # fmt: skip
     out = Path(args.out)
     (out / "action_sources.md").write_text("\n".join(lines) + "\n")
     (out / "action_sources.json").write_text(json.dumps(rows, indent=1))
