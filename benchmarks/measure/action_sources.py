@@ -157,6 +157,7 @@ def main() -> None:
             lines.append(f"Gripper R² over {len(gripper)} seeds, {count} labelled: {np.mean(gripper):.4f} ± "
                          f"{np.std(gripper, ddof=1):.4f} (min {min(gripper):.4f}).")  # fmt: skip
     out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
     (out / "action_sources.md").write_text("\n".join(lines) + "\n")
     (out / "action_sources.json").write_text(json.dumps(rows, indent=1))
     torch.set_num_threads(1)
