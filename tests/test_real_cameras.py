@@ -71,10 +71,10 @@ def arm_run(arm_labelled, shared_dir) -> Path:
 
 def test_a_supervised_idm_trains_on_two_480x640_cameras_under_the_memory_cap(arm_run):
     config = json.loads((arm_run / CHECKPOINT / "config.json").read_text())
-    assert config["resize_shape"] == [96, 128]  # the default working resolution, recorded
+    assert config["resize_shape"] == [72, 96]  # the default working resolution, recorded
     assert config["input_features"][CAMERAS[0]]["shape"] == [3, 480, 640]
     policy = IUPEPolicy.from_pretrained(arm_run / CHECKPOINT)
-    assert policy.layout.shapes[0] == (3, 96, 128)
+    assert policy.layout.shapes[0] == (3, 72, 96)
 
 
 def test_a_480x640_video_dataset_is_relabelled_under_the_memory_cap(arm_run, data_dir):
@@ -109,7 +109,7 @@ def test_relabelling_labels_what_the_policy_sees_of_lerobots_own_frames(arm_run,
 
 
 def test_a_checkpoint_relabels_cameras_of_another_size_as_it_sees_its_own(arm_run, data_dir):
-    """The same recording at 240×320 is read at the checkpoint's 96×128: its labels match the 480×640 ones."""
+    """The same recording at 240×320 is read at the checkpoint's 72×96: its labels match the 480×640 ones."""
     big = arm(data_dir, "arm-480-state-only", episodes=3, frames_per_episode=24, with_actions=False)
     small = arm(data_dir, "arm-240-state-only", episodes=3, frames_per_episode=24, with_actions=False,
                 height=240, width=320)  # fmt: skip
@@ -117,7 +117,7 @@ def test_a_checkpoint_relabels_cameras_of_another_size_as_it_sees_its_own(arm_ru
     outputs = []
     for root in (big, small):
         dataset = LeRobotDataset("local/x", root=root, video_backend="pyav")
-        reader = EpisodeFrames(dataset, {k: (96, 128) for k in CAMERAS}, "pyav")
+        reader = EpisodeFrames(dataset, {k: tuple(policy.config.resize_shape) for k in CAMERAS}, "pyav")
         parts = [reader.read(k, 0, 0, 23) for k in policy.config.observation_keys]
         frames = policy.layout.join(parts)
         window = torch.stack([frames[:-2], frames[1:-1], frames[2:], frames[2:]], dim=1)

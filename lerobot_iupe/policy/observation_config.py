@@ -24,8 +24,8 @@ from lerobot_iupe.policy.train_run import lerobot_train_config
 
 EVAL_MODES = ("argmax", "sample")
 IMAGE_BACKBONES = ("cnn", "resnet18")
-# The default working resolution's longer side (--policy.resize_shape): see benchmarks/relabel.md.
-DEFAULT_LONGEST_SIDE = 128
+# The default working resolution's longer side (--policy.resize_shape): see docs/policy.md.
+DEFAULT_LONGEST_SIDE = 96
 
 
 @dataclass
@@ -59,8 +59,8 @@ class ObservationPolicyConfig(PreTrainedConfig):
     # Every camera is resized to [height, width] before the encoders — in training, rollouts, select_action
     # (lerobot-eval) and relabelling — so that a dataset or env of another camera size is read at the size the
     # checkpoint learned (LeRobot's name, as in its Diffusion policy). None = cameras as they are when none is over
-    # 128 px on its longer side, else the largest one scaled to 128 px on its longer side, aspect ratio kept
-    # (640×480 → [96, 128]; benchmarks/relabel.md measures the choice). Resolved when the policy is built, so
+    # 96 px on its longer side, else the largest one scaled to 96 px on its longer side, aspect ratio kept
+    # (640×480 → [72, 96]; docs/policy.md says how the choice was measured). Resolved when the policy is built, so
     # config.json records what ran.
     resize_shape: list[int] | None = None
     # Image encoder: "cnn" (compact residual CNN, CPU-sized at 64 px) or "resnet18" (torchvision, for GPU runs).
@@ -97,7 +97,7 @@ class ObservationPolicyConfig(PreTrainedConfig):
             raise ValueError(f"--policy.rollout_layouts must be 0 (all layouts) or more, got {self.rollout_layouts}")
         if self.resize_shape is not None and (len(self.resize_shape) != 2 or min(self.resize_shape) < 8):
             raise ValueError(
-                f"--policy.resize_shape must be [height, width] of at least 8 pixels each (e.g. [96,128] for "
+                f"--policy.resize_shape must be [height, width] of at least 8 pixels each (e.g. [72,96] for "
                 f"640×480 cameras), got {self.resize_shape}"
             )
         if self.image_backbone not in IMAGE_BACKBONES:
