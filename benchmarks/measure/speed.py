@@ -372,7 +372,11 @@ def render(results: dict, page: Path) -> None:
                   "setting that keeps freed memory (`policy/threads.py`), made for relabelling's IDM passes (batch "
                   "32); one run each (0.95×, 1.30×) shows no effect on training beyond this machine's noise, which "
                   "was larger that day: the d03e093 2,000-frame rows, run an hour earlier, read 2.22× where an "
-                  "earlier run read 2.81×.", ""]  # fmt: skip
+                  "earlier run read 2.81×. The 96×128 → 72×96 rows run each revision at its default working "
+                  "resolution (72×96 here since cdf13eb). The camera IDM again, alternated the same hour (300 steps, "
+                  "4 and 3 runs): 14.0–18.7 steps/s at 72×96 and 13.3–14.9 at 96×128 against d03e093's 4.9–5.1, so "
+                  "2.7–3.7× (mean 3.4×) at the default and 2.6–3.0× at 96×128 (benchmarks/findings.md, seventh "
+                  "pass).", ""]  # fmt: skip
     if "maze" in results:
         lines += ["## The 64×64 path", "", commands_of(results, "maze"), "",
                   "| data | steps | before steps/s | after steps/s | speedup | before relabel frames/s | "
@@ -395,10 +399,9 @@ def render(results: dict, page: Path) -> None:
                   " --steps=300` (`--checkpoint`); before c96015a, PyAV's decoder started a thread per core in every "
                   "process (libdav1d ignores `thread_type`). The machine ran the 59efeed rows' plain decodes 20% "
                   "slower than the c96015a rows' (174 against 217 frames/s): compare ratios within a row. The 72×96 "
-                  "rows relabel with an IDM trained the same way with `--policy.resize_shape=[72,96]` (not the "
-                  "default): in their run torchcodec's plain decode ran 30% slower than in the 59efeed rows while "
-                  "PyAV's did not, so their ratio to torchcodec's overstates the gain; benchmarks/findings.md (sixth "
-                  "pass) compares the resolutions in one alternated run, and why the default stays 96×128.", "",
+                  "rows (the default working resolution since cdf13eb) relabel with the camera IDM trained alone by "
+                  "`--only train` on the 2,000-frame recording at the default, 300 steps; benchmarks/findings.md "
+                  "(seventh pass) compares the resolutions in alternated runs.", "",
                   "| frames | decoder | processes | machine | working resolution | relabel frames/s | without the pull"
                   " | plain decode, "
                   "torchcodec | plain decode, PyAV | ratio to torchcodec's | without the pull | ratio to PyAV's, "

@@ -32,7 +32,7 @@ class SpatialSelfAttention(nn.Module):
     one is max-pooled to the largest grid of its aspect ratio within ``MAX_POSITIONS``, attended there, and the
     result brought back to the map's size bilinearly before the residual sum: the cost is bounded whatever the
     picture, where a 640×480 camera's first stage (120×160) would need a 19,200 × 19,200 matrix per image (1.5 GB).
-    At 96×128 (the default working resolution for 640×480) this made the image IDM label 2.6× faster than keys
+    At 96×128 (then the default working resolution for 640×480) this made the image IDM label 2.6× faster than keys
     pooled alone with every position querying (benchmarks/relabel.md). SAGAN's scores are unscaled. On a GPU the
     product is ``scaled_dot_product_attention``'s fused kernel; on a CPU the plain product, as that kernel took
     2.4× as long at these head sizes (2–4 channels)."""
