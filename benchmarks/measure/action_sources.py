@@ -34,7 +34,7 @@ from lerobot_iupe.relabel.config import CheckpointRef, RelabelConfig, RelabelDat
 from lerobot_iupe.relabel.run import relabel
 
 sys.path.insert(0, str(Path(__file__).parent))
-from steps import command_line, dry_run, parse_with_folders, train_once  # noqa: E402
+from steps import command_line, dry_run, parse_with_folders, resolution_of, train_once  # noqa: E402
 
 FRAMES, HELD_OUT, FPS, IDLE = 150, 10, 10, "joint_4"
 TRAIN = ("--policy.type=iupe", "--policy.supervised=true", "--batch_size=64")
@@ -90,7 +90,6 @@ def main() -> None:
         checkpoint = train_once(labelled, work / f"run-{name}", *TRAIN, f"--seed={seed}", *resize, steps=args.steps,
                                 threads=2)  # fmt: skip
         train_s = time.perf_counter() - start
-        resolution = json.loads((checkpoint / "config.json").read_text())["resize_shape"]
         report = dry_run(checkpoint, held_out)
         relabelled = work / f"relabelled-{name}"
         shutil.rmtree(relabelled, ignore_errors=True)
@@ -105,7 +104,7 @@ def main() -> None:
         inner = np.ones(len(labels), dtype=bool)  # the dry run scores frames with a successor; so does this
         references = report.references
         rows.append({
-            "labelled": count, "seed": seed, "resolution": "×".join(map(str, resolution or [])) or "as stored",
+            "labelled": count, "seed": seed, "resolution": resolution_of(checkpoint),
             "steps": args.steps, "train_s": round(train_s, 1),
             "dimensions": VELOCITY_ARM.action_names, "source": references["source"],
             "idm": report.agreement_per_dimension, "ridge": references["ridge"],

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from steps import command_line  # noqa: E402
+from steps import command_line, resolution_of  # noqa: E402
 
 BIN = Path(sys.executable).parent
 REPO = Path(__file__).resolve().parents[2]
@@ -88,12 +88,6 @@ def train(root: Path, out: Path, steps: int, env: dict, *extra: str) -> dict:
     )  # fmt: skip
     return {"steps_per_s": steps_per_s(output), "seconds": seconds, "peak_rss_gb": peak,
             "resolution": resolution_of(out / CHECKPOINT)}  # fmt: skip
-
-
-def resolution_of(checkpoint: Path) -> str:
-    """The working resolution a checkpoint reads its cameras at (``config.json``'s ``resize_shape``), as ``H×W``."""
-    shape = json.loads((checkpoint / "config.json").read_text()).get("resize_shape")
-    return "×".join(str(side) for side in shape) if shape else "as stored"
 
 
 def plain_decode(root: Path, backend: str, share: int, shares: int) -> int:

@@ -80,6 +80,12 @@ def dry_run(checkpoint: Path, root: Path, **options):
     return relabel(RelabelConfig(policy=CheckpointRef(path=str(checkpoint)), dataset=dataset, dry_run=True, **options))
 
 
+def resolution_of(checkpoint: Path) -> str:
+    """The working resolution a checkpoint reads its cameras at (``config.json``'s ``resize_shape``), as ``H×W``."""
+    shape = json.loads((checkpoint / "config.json").read_text()).get("resize_shape")
+    return "×".join(str(side) for side in shape) if shape else "as stored"
+
+
 def printed_r2(output: str) -> dict[str, float]:
     """The IDM's R² per action dimension from a relabel's printed report: its one line ("R² per dimension:
     a=0.99, …") or its table beside the references (the IDM's column)."""
